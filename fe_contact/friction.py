@@ -1,0 +1,244 @@
+"""Elliptic (orthotropic) Coulomb cone of the paper, sect. 3-5.
+
+Contact vectors are arrays of shape ``(n_contacts, 3)`` ordered ``(n, t_x, t_y)``
+in the local frame whose tangent axes are the orthotropy axes: ``mu_x`` acts
+along ``t_x`` and ``mu_y`` along ``t_y``.  With ``M = diag(mu_x, mu_y)``:
+
+* friction cone ``K_mu = {r : ||M^-1 r_t|| <= r_n}`` (eq. 15),
+* its polar cone ``K_mu° = {v : v_n + ||M v_t|| <= 0}`` (eq. 22),
+* the De Saxcé modified velocity ``(u_n + ||M u_t||, u_t)``.
+
+A zero coefficient is allowed: ``mu_i = 0`` forces ``r_ti = 0`` and the cone
+degenerates (for ``mu_x = mu_y = 0``) to the half-line ``r_t = 0, r_n >= 0`` of
+frictionless contact.  All functions accept scalar or per-contact coefficients.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "elliptic_norm",
+    "dual_elliptic_norm",
+    "in_cone",
+    "in_polar_cone",
+    "modified_velocity",
+    "project_elliptic_cone",
+    "rotation_matrix",
+    "to_local",
+    "to_global",
+    "scaling_diagonal",
+]
+
+_ROOT_MAX_ITER = 100
+
+
+def _as_contacts(name: str, v) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    if a.ndim == 1 and a.shape[0] == 3:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n_contacts, 3), got {np.shape(v)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains non-finite values")
+    return a
+
+
+def _as_coefficients(mu_x, mu_y, n: int) -> tuple[np.ndarray, np.ndarray]:
+    out = []
+    for name, mu in (("mu_x", mu_x), ("mu_y", mu_y)):
+        m = np.asarray(mu, dtype=float)
+        if m.ndim > 1 or (m.ndim == 1 and m.shape[0] != n):
+            raise ValueError(f"{name} must be a scalar or have shape ({n},), got {m.shape}")
+        if not np.all(np.isfinite(m)) or np.any(m < 0):
+            bad = m[~(np.isfinite(m) & (m >= 0))] if m.ndim else m
+            raise ValueError(f"{name} must be finite and >= 0, got {np.ravel(bad)[0]}")
+        out.append(np.broadcast_to(m, (n,)).astype(float))
+    return out[0], out[1]
+
+
+def _prepare(name, v, mu_x, mu_y):
+    a = _as_contacts(name, v)
+    mx, my = _as_coefficients(mu_x, mu_y, a.shape[0])
+    return a, mx, my
+
+
+def elliptic_norm(r_t, mu_x, mu_y) -> np.ndarray:
+    """``||M^-1 r_t||`` (eq. 14) for tangential vectors ``r_t`` of shape (n, 2).
+
+    A component along an axis with zero friction contributes ``inf`` unless it is 0.
+    """
+    rt = np.atleast_2d(np.asarray(r_t, dtype=float))
+    if rt.shape[-1] != 2:
+        raise ValueError(f"r_t must have shape (n_contacts, 2), got {np.shape(r_t)}")
+    mx, my = _as_coefficients(mu_x, mu_y, rt.shape[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cx = np.where(rt[:, 0] == 0.0, 0.0, rt[:, 0] / mx)
+        cy = np.where(rt[:, 1] == 0.0, 0.0, rt[:, 1] / my)
+    return np.hypot(cx, cy)
+
+
+def dual_elliptic_norm(v_t, mu_x, mu_y) -> np.ndarray:
+    """``||M v_t||`` (eq. 21), the support function of the friction ellipse."""
+    vt = np.atleast_2d(np.asarray(v_t, dtype=float))
+    if vt.shape[-1] != 2:
+        raise ValueError(f"v_t must have shape (n_contacts, 2), got {np.shape(v_t)}")
+    mx, my = _as_coefficients(mu_x, mu_y, vt.shape[0])
+    return np.hypot(mx * vt[:, 0], my * vt[:, 1])
+
+
+def in_cone(r, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
+    """Boolean mask: ``r`` in ``K_mu`` up to ``tol * ||r||``."""
+    a, mx, my = _prepare("r", r, mu_x, mu_y)
+    slack = tol * np.linalg.norm(a, axis=1)
+    # an axis without friction must carry no force; the others enter ||M^-1 r_t||
+    cx = np.where(mx > 0, a[:, 1] / np.where(mx > 0, mx, 1.0), 0.0)
+    cy = np.where(my > 0, a[:, 2] / np.where(my > 0, my, 1.0), 0.0)
+    free_ok = (np.where(mx > 0, 0.0, np.abs(a[:, 1])) <= slack) & (
+        np.where(my > 0, 0.0, np.abs(a[:, 2])) <= slack
+    )
+    return (np.hypot(cx, cy) <= a[:, 0] + slack) & free_ok
+
+
+def in_polar_cone(v, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
+    """Boolean mask: ``v`` in the polar cone, ``v_n + ||M v_t|| <= tol * ||v||``."""
+    a, mx, my = _prepare("v", v, mu_x, mu_y)
+    return a[:, 0] + np.hypot(mx * a[:, 1], my * a[:, 2]) <= tol * np.linalg.norm(a, axis=1)
+
+
+def modified_velocity(u, mu_x, mu_y) -> np.ndarray:
+    """De Saxcé modified velocity ``(u_n + ||M u_t||, u_t)``, shape (n, 3)."""
+    a, mx, my = _prepare("u", u, mu_x, mu_y)
+    out = a.copy()
+    out[:, 0] += np.hypot(mx * a[:, 1], my * a[:, 2])
+    return out
+
+
+def _boundary_multiplier(tn, tx, ty, mx, my) -> np.ndarray:
+    """Root ``t = r_n`` of the boundary-case equation of the projection.
+
+    On the cone boundary the projection is ``r = (t, tau_tx mu_x^2 t / d_x,
+    tau_ty mu_y^2 t / d_y)`` with ``d_i = (1 + mu_i^2) t - tau_n``, and ``t``
+    solves ``phi(t) = sum_i (tau_ti mu_i / d_i)^2 = 1``.  ``phi`` is convex and
+    strictly decreasing on ``(max(tau_n, 0), inf)``, exceeds 1 at the left end
+    (tau is outside both cones) and is <= 1 at
+    ``t_hi = (tau_n + ||M tau_t||) / (1 + min mu_i^2)``: a safeguarded Newton
+    iteration on that bracket has exactly one root to find.  Inputs are
+    normalised (``||tau|| = 1``).  For ``mu_x = mu_y``, ``t_hi`` is the root.
+    """
+    ax, ay = tx * mx, ty * my
+    sup = np.hypot(ax, ay)
+    m2x, m2y = mx * mx, my * my
+    lo = np.maximum(tn, 0.0)
+    hi = (tn + sup) / (1.0 + np.minimum(m2x, m2y))
+    t = hi.copy()
+    active = np.ones(t.shape, dtype=bool)
+    for _ in range(_ROOT_MAX_ITER):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        ti = t[idx]
+        dx = (1.0 + m2x[idx]) * ti - tn[idx]
+        dy = (1.0 + m2y[idx]) * ti - tn[idx]
+        gx, gy = ax[idx] / dx, ay[idx] / dy
+        f = gx * gx + gy * gy - 1.0
+        df = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
+        # keep the bracket [lo, hi] around the root
+        lo[idx] = np.where(f > 0, ti, lo[idx])
+        hi[idx] = np.where(f <= 0, ti, hi[idx])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tn_new = ti - f / df
+        # f == 0 gives tn_new == ti, which is then an end of the bracket: keep it
+        outside = ~np.isfinite(tn_new) | (tn_new < lo[idx]) | (tn_new > hi[idx])
+        tn_new = np.where(outside, 0.5 * (lo[idx] + hi[idx]), tn_new)
+        done = (np.abs(tn_new - ti) <= 1e-15 * ti) | (np.abs(f) <= 1e-15) | (
+            hi[idx] - lo[idx] <= 1e-15 * hi[idx]
+        )
+        t[idx] = tn_new
+        active[idx[done]] = False
+    return t
+
+
+def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
+    """Euclidean projection of ``tau`` onto the elliptic cone ``K_mu`` (sect. 5).
+
+    Parameters
+    ----------
+    tau : array_like, shape (n_contacts, 3) or (3,)
+        Points ``(tau_n, tau_tx, tau_ty)`` in the local frames.
+    mu_x, mu_y : float or array_like, shape (n_contacts,)
+        Friction coefficients along ``t_x`` and ``t_y`` (>= 0).
+
+    Returns
+    -------
+    r : ndarray, shape (n_contacts, 3)
+        ``tau`` if it lies in ``K_mu``; 0 if it lies in the polar cone; otherwise
+        the nearest point on the cone boundary.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape, non-finite entries or negative coefficients.
+    """
+    a, mx, my = _prepare("tau", tau, mu_x, mu_y)
+    r = np.zeros_like(a)
+    scale = np.linalg.norm(a, axis=1)
+    nz = scale > 0
+    s = np.where(nz, scale, 1.0)
+    tn, tx, ty = a[:, 0] / s, a[:, 1] / s, a[:, 2] / s
+    sup = np.hypot(mx * tx, my * ty)  # ||M tau_t||
+    polar = tn + sup <= 0.0
+    inside = in_cone(np.column_stack([tn, tx, ty]), mx, my) & ~polar
+    rest = nz & ~polar & ~inside
+    # tau outside both cones but with no friction-weighted tangential part: the
+    # projection is onto the axis (tau_n > 0 here since tau is not polar).
+    axis = rest & (sup == 0.0)
+    boundary = rest & ~axis
+    r[inside] = a[inside]
+    r[axis, 0] = a[axis, 0]
+    if np.any(boundary):
+        b = boundary
+        t = _boundary_multiplier(tn[b], tx[b], ty[b], mx[b], my[b])
+        dx = (1.0 + mx[b] ** 2) * t - tn[b]
+        dy = (1.0 + my[b] ** 2) * t - tn[b]
+        r[b, 0] = t * s[b]
+        r[b, 1] = tx[b] * mx[b] ** 2 * t / dx * s[b]
+        r[b, 2] = ty[b] * my[b] ** 2 * t / dy * s[b]
+    return r
+
+
+def rotation_matrix(angle) -> np.ndarray:
+    """In-plane rotation(s) ``R(angle)`` mapping local tangent coordinates to world x, y.
+
+    Returns shape (2, 2) for a scalar angle, (n, 2, 2) for an array.
+    """
+    th = np.asarray(angle, dtype=float)
+    if not np.all(np.isfinite(th)):
+        raise ValueError(f"angle must be finite, got {angle}")
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def to_local(v_world, angle) -> np.ndarray:
+    """World ``(x, y, z)`` vectors, shape (n, 3), to local ``(n, t_x, t_y)``."""
+    v = _as_contacts("v_world", v_world)
+    R = rotation_matrix(angle)
+    t = np.einsum("...ji,...j->...i", R, v[:, :2])
+    return np.column_stack([v[:, 2], t])
+
+
+def to_global(v_local, angle) -> np.ndarray:
+    """Local ``(n, t_x, t_y)`` vectors, shape (n, 3), to world ``(x, y, z)``."""
+    v = _as_contacts("v_local", v_local)
+    R = rotation_matrix(angle)
+    xy = np.einsum("...ij,...j->...i", R, v[:, 1:])
+    return np.column_stack([xy, v[:, 0]])
+
+
+def scaling_diagonal(mu_x, mu_y, n: int) -> np.ndarray:
+    """Per-contact ``D = diag(1, mu_x, mu_y)`` as an array of shape (n, 3).
+
+    ``FC(W, q, M)`` equals the isotropic ``FC(D W D, D q, mu = 1)`` with ``r = D s``.
+    """
+    mx, my = _as_coefficients(mu_x, mu_y, n)
+    return np.column_stack([np.ones(n), mx, my])

@@ -1,0 +1,327 @@
+"""Solvers of the condensed frictional contact problem (paper sect. 8, eq. 42-45).
+
+Find per contact ``r`` (shape ``(n_contacts, 3)``, local ``(n, t_x, t_y)``) with
+
+    u = W r + q,    r in K_mu,    modified(u) in K_mu*,    r . modified(u) = 0,
+
+i.e. ``r = proj_K(r - rho * modified(u))`` for any ``rho > 0``, where ``K_mu`` is
+the elliptic cone of :mod:`fe_contact.friction` and ``modified(u) = (u_n +
+||M u_t||, u_t)`` is De Saxcé's modified velocity.  ``W`` is symmetric positive
+(semi)definite of size ``3 n_contacts``, blocks ordered like ``r``.
+
+Methods
+-------
+``"uzawa"``
+    The paper's Uzawa / bi-potential fixed point, all contacts updated at once
+    with the per-contact ``rho = 1 / min(w_nn, w_txtx, w_tyty)`` of sect. 8.
+``"newton"``
+    Semismooth Newton on the Alart-Curnier equations of the equivalent isotropic
+    problem ``FC(D W D, D q, mu = 1)``, ``r = D s``, ``D = diag(1, mu_x, mu_y)``,
+    globalised by a non-monotone Armijo line search on ``|F|^2 / 2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from .friction import _as_coefficients, modified_velocity, project_elliptic_cone
+
+__all__ = ["LocalSolution", "solve_local", "natural_map_residual", "METHODS"]
+
+METHODS = ("uzawa", "newton")
+
+_ARMIJO_SIGMA = 1e-4
+_MIN_STEP = 2.0**-30
+_NONMONOTONE_MEMORY = 5
+_DIVERGED = 1e8
+
+
+@dataclass(frozen=True)
+class LocalSolution:
+    """Outcome of :func:`solve_local`.
+
+    Attributes
+    ----------
+    r, u : ndarray, shape (n_contacts, 3)
+        Reactions and (relative) velocities/displacement increments, local frames.
+    iterations : int
+        Iterations performed (fixed-point sweeps or Newton steps).
+    residual : float
+        Normalised natural-map residual of the returned ``r`` (see
+        :func:`natural_map_residual`).
+    converged : bool
+        ``residual <= tol``.
+    residual_history : tuple of float
+        Residual after each recorded iteration.
+    method : str
+    """
+
+    r: np.ndarray
+    u: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    residual_history: tuple
+    method: str
+
+
+def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
+    """``||r - proj_K(r - modified(u))|| / max(||q||, ||r||, ||u||)`` (1 if all are 0).
+
+    The normalisation is the one of Siconos' ``fc3d_compute_error``.
+    """
+    r = np.asarray(r, dtype=float)
+    u = np.asarray(u, dtype=float)
+    n = r.shape[0]
+    if n == 0:
+        return 0.0
+    mx, my = _as_coefficients(mu_x, mu_y, n)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(u))):
+        return float("inf")
+    with np.errstate(over="ignore", invalid="ignore"):
+        res = np.linalg.norm(r - project_elliptic_cone(r - modified_velocity(u, mx, my), mx, my))
+        scale = max(np.linalg.norm(q), np.linalg.norm(r), np.linalg.norm(u))
+    if not np.isfinite(scale):
+        return float("inf")
+    return float(res / scale) if scale > 0 else float(res)
+
+
+def _validate(W, q, mu_x, mu_y, r0):
+    qa = np.asarray(q, dtype=float)
+    if qa.ndim == 1:
+        if qa.size % 3:
+            raise ValueError(f"q must have shape (n_contacts, 3) or (3 n_contacts,), got {qa.shape}")
+        qa = qa.reshape(-1, 3)
+    if qa.ndim != 2 or qa.shape[1] != 3:
+        raise ValueError(f"q must have shape (n_contacts, 3), got {qa.shape}")
+    n = qa.shape[0]
+    Wd = W.toarray() if sp.issparse(W) else np.asarray(W, dtype=float)
+    if Wd.ndim != 2 or Wd.shape[0] != Wd.shape[1]:
+        raise ValueError(f"W must be square, got shape {Wd.shape}")
+    if Wd.shape[0] != 3 * n:
+        raise ValueError(f"W has shape {Wd.shape} but q has {n} contacts (expected {3 * n} rows)")
+    if not np.all(np.isfinite(Wd)):
+        raise ValueError("W contains non-finite values")
+    if not np.all(np.isfinite(qa)):
+        raise ValueError("q contains non-finite values")
+    if np.any(np.diag(Wd) < 0):
+        raise ValueError(f"W must have a non-negative diagonal, got min {np.diag(Wd).min()}")
+    mx, my = _as_coefficients(mu_x, mu_y, n)
+    if r0 is None:
+        ra = np.zeros((n, 3))
+    else:
+        ra = np.array(r0, dtype=float).reshape(-1, 3) if np.size(r0) == 3 * n else None
+        if ra is None:
+            raise ValueError(f"r0 must have shape ({n}, 3), got {np.shape(r0)}")
+        if not np.all(np.isfinite(ra)):
+            raise ValueError("r0 contains non-finite values")
+    return Wd, qa, mx, my, ra
+
+
+def solve_local(
+    W,
+    q,
+    mu_x,
+    mu_y,
+    method: str = "uzawa",
+    tol: float = 1e-10,
+    max_iter: int | None = None,
+    r0=None,
+) -> LocalSolution:
+    """Solve the condensed frictional contact problem ``FC(W, q, M)``.
+
+    Parameters
+    ----------
+    W : array_like or sparse, shape (3 n, 3 n)
+        Flexibility matrix in the local frames (symmetric positive semidefinite).
+    q : array_like, shape (n, 3) or (3 n,)
+        Free displacement (velocity) of the contacts, ``u = W r + q``.
+    mu_x, mu_y : float or array_like, shape (n,)
+        Friction coefficients along the local axes (>= 0).
+    method : {"uzawa", "newton"}
+    tol : float
+        Target normalised natural-map residual.
+    max_iter : int, optional
+        Iteration limit (default 20000 for Uzawa, 100 for Newton).
+    r0 : array_like, shape (n, 3), optional
+        Initial reactions (warm start); projected onto the cone first.
+
+    Returns
+    -------
+    LocalSolution
+        ``converged`` is False (never an exception) when the limit is reached.
+
+    Raises
+    ------
+    ValueError
+        Non-square or mismatched ``W``, non-finite data, negative ``mu``,
+        unknown method, non-positive ``tol``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not (np.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol must be > 0, got {tol}")
+    if max_iter is not None and int(max_iter) < 1:
+        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    Wd, qa, mx, my, ra = _validate(W, q, mu_x, mu_y, r0)
+    if qa.shape[0] == 0:
+        empty = np.zeros((0, 3))
+        return LocalSolution(empty, empty, 0, 0.0, True, (), method)
+    ra = project_elliptic_cone(ra, mx, my)
+    if method == "uzawa":
+        return _uzawa(Wd, qa, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter))
+    return _newton(Wd, qa, mx, my, ra, tol, 100 if max_iter is None else int(max_iter))
+
+
+def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
+    n = q.shape[0]
+    diag = np.diag(W).reshape(n, 3)
+    positive = np.where(diag > 0, diag, np.inf)
+    wmin = positive.min(axis=1)
+    # a contact with no flexibility at all does not move: any rho works
+    rho = np.where(np.isfinite(wmin), 1.0 / np.where(np.isfinite(wmin), wmin, 1.0), 1.0)[:, None]
+    history = []
+    check_every = 10
+    # reaction scale of the problem: |q| / |W| bounds a converged r by orders of magnitude
+    r_scale = max(np.abs(q).max() / max(np.abs(W).max(), 1e-300), np.abs(r).max(), 1e-300)
+    r_last = r
+    it = 0
+    residual = np.inf
+    while it < max_iter:
+        u = (W @ r.ravel()).reshape(n, 3) + q
+        if it % check_every == 0:
+            residual = natural_map_residual(r, u, q, mx, my)
+            history.append(residual)
+            # divergence (the fixed point is not a contraction for this W) is
+            # reported with the last finite iterate, not as overflow
+            if residual <= tol or not np.isfinite(residual) or np.abs(r).max() > _DIVERGED * r_scale:
+                break
+            r_last = r
+        r = project_elliptic_cone(r - rho * modified_velocity(u, mx, my), mx, my)
+        it += 1
+    if not np.isfinite(residual) or np.abs(r).max() > _DIVERGED * r_scale:
+        r = r_last
+    u = (W @ r.ravel()).reshape(n, 3) + q
+    residual = natural_map_residual(r, u, q, mx, my)
+    if not history or history[-1] != residual:
+        history.append(residual)
+    return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), "uzawa")
+
+
+def _alart_curnier(s, Ws, qs, mu, rho, fixed):
+    """AC function ``F(s)`` and one element of its generalised Jacobian.
+
+    Isotropic cone with coefficients ``mu`` (1 or 0) on scaled variables.
+    ``fixed`` marks scaled components pinned to 0 (axes with zero friction).
+    """
+    n = s.shape[0]
+    u = (Ws @ s.ravel()).reshape(n, 3) + qs
+    p = s[:, 0] - rho * u[:, 0]
+    active = p > 0
+    R = mu * np.maximum(p, 0.0)
+    z = s[:, 1:] - rho[:, None] * u[:, 1:]
+    zn = np.linalg.norm(z, axis=1)
+    stick = (zn <= R) & (R > 0)
+    zhat = np.where(zn[:, None] > 0, z / np.where(zn > 0, zn, 1.0)[:, None], 0.0)
+
+    F = np.empty_like(s)
+    F[:, 0] = np.where(active, rho * u[:, 0], s[:, 0])
+    F[:, 1:] = np.where(stick[:, None], rho[:, None] * u[:, 1:], s[:, 1:] - R[:, None] * zhat)
+
+    m = 3 * n
+    Wr = Ws.reshape(n, 3, m)
+    eye = np.eye(m).reshape(n, 3, m)
+    J = np.empty((n, 3, m))
+    J[:, 0] = np.where(active[:, None], rho[:, None] * Wr[:, 0], eye[:, 0])
+    # stick rows: rho * W_t
+    J_stick = rho[:, None, None] * Wr[:, 1:]
+    # slide rows: E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)
+    dR = np.where(active[:, None], mu[:, None] * (eye[:, 0] - rho[:, None] * Wr[:, 0]), 0.0)
+    dz = eye[:, 1:] - rho[:, None, None] * Wr[:, 1:]
+    proj = np.eye(2)[None] - zhat[:, :, None] * zhat[:, None, :]
+    coef = np.where(zn > 0, R / np.where(zn > 0, zn, 1.0), 0.0)
+    J_slide = eye[:, 1:] - zhat[:, :, None] * dR[:, None, :] - coef[:, None, None] * np.einsum(
+        "cij,cjm->cim", proj, dz
+    )
+    J[:, 1:] = np.where(stick[:, None, None], J_stick, J_slide)
+
+    F = np.where(fixed, s, F)
+    J = np.where(fixed[:, :, None], eye, J)
+    return F, J.reshape(m, m)
+
+
+def _newton(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
+    n = q.shape[0]
+    frictionless = (mx == 0) & (my == 0)
+    # D = diag(1, mu_x, mu_y); frictionless contacts keep D = I with mu = 0
+    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx), np.where(frictionless, 1.0, my)])
+    mu = np.where(frictionless, 0.0, 1.0)
+    fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
+    d = D.ravel()
+    Ws = W * d[:, None] * d[None, :]
+    qs = q * D
+    diag = np.diag(Ws).reshape(n, 3)
+    w_ref = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
+    rho = np.full(n, 1.0 / w_ref)
+    # A singular W (rigid multibody problems, axes without friction) makes the
+    # Newton matrix singular; proximal-point regularisation (solve
+    # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
+    # same fixed point.  An SPD W needs none.
+    eig = np.linalg.eigvalsh(0.5 * (Ws + Ws.T))
+    eta = 0.0 if eig[0] > 1e-8 * eig[-1] else 1e-2 * w_ref
+    eye = np.eye(3 * n)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(D > 0, r / np.where(D > 0, D, 1.0), 0.0)
+
+    def true_residual(s):
+        rr = s * D
+        uu = (W @ rr.ravel()).reshape(n, 3) + q
+        return natural_map_residual(rr, uu, q, mx, my)
+
+    residual = true_residual(s)
+    history = [residual]
+    it = 0
+    while residual > tol and it < max_iter:
+        Wp = Ws + eta * eye
+        qp = qs - eta * s
+        F, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)
+        psi = 0.5 * float(F.ravel() @ F.ravel())
+        merits: list[float] = []
+        for _ in range(30 if eta > 0 else max_iter):
+            if it >= max_iter:
+                break
+            try:
+                step = sla.solve(J, -F.ravel(), check_finite=False, assume_a="gen")
+            except sla.LinAlgError:
+                step = sla.lstsq(J, -F.ravel(), check_finite=False)[0]
+            step = step.reshape(n, 3)
+            merits.append(psi)
+            ref = max(merits[-_NONMONOTONE_MEMORY:])
+            alpha = 1.0
+            while True:
+                s_try = s + alpha * step
+                F_try, J_try = _alart_curnier(s_try, Wp, qp, mu, rho, fixed)
+                psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
+                if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
+                    break
+                alpha *= 0.5
+            s, F, J, psi = s_try, F_try, J_try, psi_try
+            it += 1
+            residual = true_residual(s)
+            history.append(residual)
+            if residual <= tol or np.sqrt(2.0 * psi) <= 1e-3 * residual * max(np.linalg.norm(qs), 1e-300):
+                break
+        if eta > 0:
+            eta = max(0.2 * eta, 1e-10 * w_ref)
+    rr = s * D
+    # the Newton iterate may sit a rounding error outside the cone
+    r_final = project_elliptic_cone(rr, mx, my)
+    u_final = (W @ r_final.ravel()).reshape(n, 3) + q
+    residual = natural_map_residual(r_final, u_final, q, mx, my)
+    history[-1] = residual
+    return LocalSolution(r_final, u_final, it, residual, residual <= tol, tuple(history), "newton")

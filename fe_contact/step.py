@@ -1,0 +1,288 @@
+"""One quasi-static load step: Newton equilibrium loop with the contact correction
+on the contact nodes only (paper sect. 8, Box 3 / Box 4).
+
+At Newton iterate ``U_i`` with contact forces ``r_i`` the linearised problem is
+condensed onto the contact dofs with the flexibility matrix
+``W = T C K_ff^-1 C^T T^T`` (contact block of the inverse tangent, local frames):
+
+    u = W r + q,   q = T (w_i + C K_ff^-1 (-R_i)) - W r_i,
+
+where ``w_i`` holds, per contact node, the world tangential displacement increment
+over the step and the normal gap, and ``R_i = f_int(U_i) - C^T T^T r_i`` is the
+out-of-balance force of the free dofs.  The local solver returns ``r`` satisfying
+the De Saxce law (paper eq. 42-45) for this ``u``; the displacement update follows
+without refactorising.  Contact kinematics against the plane z = 0 are exactly
+linear in ``U``, so at convergence the contact law holds for the true
+displacements and the only Newton nonlinearity is geometric.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from .elasticity import internal_force, internal_force_and_tangent
+from .local_solver import solve_local
+from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
+from .pose import face_centroid_displacement, planar_yaw, twist_angle
+
+SEPARATION_FORCE = 1e-9
+"""Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
+SLIP_DISPLACEMENT = 1e-9
+"""Tangential increment, relative to the largest block dimension, above which a contact node counts as slipping."""
+
+
+def upper_face_displacement(model: Model, translation: np.ndarray, rotation: float) -> np.ndarray:
+    """Displacement of the upper-face nodes for a rigid pose of the upper face.
+
+    Parameters
+    ----------
+    translation : ndarray, shape (3,)
+        Cumulative translation of the upper face, m.
+    rotation : float
+        Cumulative rotation about the vertical axis through the (translated)
+        upper-face centre, rad.
+
+    Returns
+    -------
+    ndarray, shape (n_upper, 3)
+    """
+    X = model.mesh.nodes[model.mesh.upper]
+    c = model.upper_centre
+    cs, sn = math.cos(rotation), math.sin(rotation)
+    rel = X - c
+    x = np.empty_like(X)
+    x[:, 0] = c[0] + cs * rel[:, 0] - sn * rel[:, 1]
+    x[:, 1] = c[1] + sn * rel[:, 0] + cs * rel[:, 1]
+    x[:, 2] = X[:, 2]
+    return x + translation - X
+
+
+class _Tangent:
+    """Factorised free-dof tangent and the flexibility data derived from it."""
+
+    def __init__(self, model: Model, K):
+        free = model.free_dofs
+        Kff = K[free][:, free].tocsc()
+        self.lu = spla.splu(Kff, permc_spec="MMD_AT_PLUS_A")
+        n_lower = model.n_contacts
+        # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
+        self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
+        E = np.zeros((free.size, 3 * n_lower))
+        E[self.contact_index, np.arange(3 * n_lower)] = 1.0
+        self.response = self.lu.solve(E)  # (n_free, 3 n_lower): K_ff^-1 C^T (world)
+        G = self.response[self.contact_index].reshape(n_lower, 3, n_lower, 3)
+        G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
+        T = model.frame
+        self.W = np.einsum("ij,ajbk,lk->aibl", T, G, T).reshape(3 * n_lower, 3 * n_lower)
+        self.w_mean = float(np.mean(np.diag(self.W)))
+
+
+def step(model: Model, state: State, command: Command) -> tuple[State, StepReport]:
+    """Apply one load step.
+
+    Parameters
+    ----------
+    model : Model
+    state : State
+        State at the start of the step (not modified).
+    command : Command
+        Rigid motion increment of the upper face.
+
+    Returns
+    -------
+    new_state : State
+        State at the end of the step; the input ``state`` when the step failed.
+    report : StepReport
+        Measurements of the step; ``report.status`` tells whether it converged and
+        which loop failed otherwise.
+    """
+    if not isinstance(model, Model):
+        raise ValueError(f"model must be a Model, got {type(model).__name__}")
+    if not isinstance(state, State):
+        raise ValueError(f"state must be a State, got {type(state).__name__}")
+    if not isinstance(command, Command):
+        raise ValueError(f"command must be a Command, got {type(command).__name__}")
+    if state.displacement.shape != (model.mesh.n_nodes, 3):
+        raise ValueError(
+            f"state.displacement has shape {state.displacement.shape}, model needs {(model.mesh.n_nodes, 3)}"
+        )
+    t0 = time.perf_counter()
+    opts = model.options
+    mesh = model.mesh
+    T = model.frame
+    mu_x, mu_y = model.friction.mu_x, model.friction.mu_y
+    free = model.free_dofs
+    lower = mesh.lower
+
+    translation = state.upper_translation + np.array([command.dx, command.dy, command.dz])
+    rotation = state.upper_rotation + command.dtheta
+    U = np.array(state.displacement, dtype=float)
+    U[mesh.upper] = upper_face_displacement(model, translation, rotation)
+    U_start_lower = state.displacement[lower]
+    r = np.array(state.reaction, dtype=float)
+
+    status, message = Status.NEWTON_NOT_CONVERGED, ""
+    logs: list[IterLog] = []
+    tangent = None
+    local = None
+    rel_res = math.inf
+    min_det = math.nan
+    f_int = None
+    scale0 = 0.0
+    for it in range(opts.newton_max_iter + 1):
+        need_tangent = tangent is None or not opts.reuse_tangent
+        if need_tangent:
+            f_int, K, min_det = internal_force_and_tangent(
+                model.geometry, mesh.elements, U, model.material, model.pattern
+            )
+        else:
+            f_int, min_det = internal_force(model.geometry, mesh.elements, U, model.material)
+        if not np.all(np.isfinite(f_int)) or not math.isfinite(min_det):
+            status, message = Status.NOT_FINITE, f"non-finite internal force at Newton iteration {it}"
+            break
+        if min_det <= 0:
+            status, message = (
+                Status.ELEMENT_INVERTED,
+                f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}",
+            )
+            break
+        contact_world = r @ T  # (n_lower, 3) world force of each contact node
+        f_contact = np.zeros(mesh.n_dofs)
+        f_contact[model.lower_dofs.ravel()] = contact_world.ravel()
+        R = (f_int - f_contact)[free]
+        upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0)
+        # the out-of-balance force of the predictor (iteration 0) keeps the scale
+        # meaningful when the block is lifted off and all forces vanish
+        scale = max(np.linalg.norm(f_int[model.upper_dofs]), np.linalg.norm(contact_world))
+        if it == 0:
+            scale0 = float(np.linalg.norm(R))
+        scale = max(scale, scale0)
+        rel_res = float(np.linalg.norm(R) / scale) if scale > 0 else float(np.linalg.norm(R))
+        if it > 0 and rel_res <= opts.newton_tol:
+            status = Status.CONVERGED
+            break
+        if it == opts.newton_max_iter:
+            message = (
+                f"Newton loop did not converge in {opts.newton_max_iter} iterations "
+                f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})"
+            )
+            break
+        if need_tangent:
+            tangent = _Tangent(model, K)
+        dU_free = tangent.lu.solve(-R)
+        dw0 = dU_free[tangent.contact_index].reshape(-1, 3)
+        w = U[lower] - U_start_lower
+        w[:, 2] = mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
+        q = (w + dw0) @ T.T - (tangent.W @ r.ravel()).reshape(-1, 3)
+        # dividing u = W r + q by the mean compliance gives u force units, so the
+        # natural-map residual (r - proj(r - modified(u))) is homogeneous; the
+        # contact law is invariant under this scaling of u.
+        local = solve_local(
+            tangent.W / tangent.w_mean, q / tangent.w_mean, mu_x, mu_y,
+            method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
+        )
+        logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
+        if not local.converged:
+            status = Status.CONTACT_NOT_CONVERGED
+            message = (
+                f"contact ({opts.local_method}) did not converge at Newton iteration {it}: "
+                f"residual {local.residual:.3g} after {local.iterations} iterations"
+            )
+            break
+        dr_world = ((local.r - r) @ T).ravel()
+        dU_free = dU_free + tangent.response @ dr_world
+        U_flat = U.ravel()
+        U_flat[free] += dU_free
+        U = U_flat.reshape(-1, 3)
+        r = np.array(local.r, dtype=float)
+    contact_residual = logs[-1].contact_residual if logs else 0.0
+
+    # ---- measurements ------------------------------------------------------
+    contact_world = r @ T
+    slip_inc = U[lower, :2] - U_start_lower[:, :2]
+    du_local = slip_inc @ T[1:, :2].T  # (n_lower, 2) in (t_x, t_y)
+    gap = mesh.nodes[lower, 2] + U[lower, 2]
+    r_scale = float(np.abs(r).max()) if r.size else 0.0
+    separated = r[:, 0] <= SEPARATION_FORCE * r_scale
+    slipping = ~separated & (
+        np.linalg.norm(slip_inc, axis=1) > SLIP_DISPLACEMENT * max(mesh.size)
+    )
+    node_status = np.where(separated, NodeStatus.SEPARATED, np.where(slipping, NodeStatus.SLIP, NodeStatus.STICK))
+    slip_path = state.slip_path + np.linalg.norm(slip_inc, axis=1)
+    upper_c = face_centroid_displacement(U[mesh.upper], model.upper_area)
+    lower_c = face_centroid_displacement(U[lower], model.lower_area)
+    X_lower = mesh.nodes[lower]
+    tw = twist_angle(upper_c, lower_c, max(mesh.size))
+    upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+    total_contact = contact_world.sum(axis=0)
+    force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), scale0)
+    eq_err = float(np.linalg.norm(total_contact + upper_force) / force_scale) if force_scale > 0 else 0.0
+    report = StepReport(
+        status=status,
+        message=message or "converged",
+        step_index=state.step_index + 1,
+        command=command,
+        displacement=U,
+        reaction_local=r,
+        reaction_world=contact_world,
+        pressure=r[:, 0] / model.lower_area,
+        slip_increment=slip_inc,
+        slip=np.linalg.norm(U[lower, :2], axis=1),
+        slip_path=slip_path,
+        gap=gap,
+        node_status=node_status.astype(np.int8),
+        upper_centroid=upper_c,
+        lower_centroid=lower_c,
+        lower_yaw=planar_yaw(X_lower, X_lower + U[lower], model.lower_area),
+        twist=tw,
+        lag=upper_c[:2] - lower_c[:2],
+        normal_force=float(r[:, 0].sum()),
+        tangential_force=total_contact[:2],
+        upper_force=upper_force,
+        equilibrium_error=eq_err,
+        dissipation=float(-(r[:, 1:] * du_local).sum()),
+        newton_iterations=len(logs),
+        contact_iterations=sum(log.contact_iterations for log in logs),
+        newton_residual=rel_res,
+        contact_residual=contact_residual,
+        min_det_f=float(min_det),
+        wall_time=time.perf_counter() - t0,
+        iterations=tuple(logs),
+    )
+    if status is not Status.CONVERGED:
+        return state, report
+    new_state = State(
+        displacement=U,
+        reaction=r,
+        upper_translation=translation,
+        upper_rotation=rotation,
+        slip_path=slip_path,
+        step_index=state.step_index + 1,
+    )
+    return new_state, report
+
+
+def run(model: Model, commands, state: State | None = None, stop_on_failure: bool = True):
+    """Apply a sequence of commands.
+
+    Returns
+    -------
+    state : State
+        Final state (the last good one if a step failed and ``stop_on_failure``).
+    reports : list[StepReport]
+    """
+    from .model import initial_state
+
+    state = initial_state(model) if state is None else state
+    reports = []
+    for cmd in commands:
+        state, rep = step(model, state, cmd)
+        reports.append(rep)
+        if not rep.converged and stop_on_failure:
+            break
+    return state, reports
