@@ -5,6 +5,11 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
+# one BLAS thread per process: the suite runs two pytest workers on two cores, and
+# threaded BLAS on small dense contact matrices is slower than serial (measured 20x)
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
+export MKL_NUM_THREADS ?= 1
 
 .PHONY: demo test test-slow bench clean
 

@@ -13,7 +13,8 @@ Methods
 -------
 ``"uzawa"``
     The paper's Uzawa / bi-potential fixed point, all contacts updated at once
-    with the per-contact ``rho = 1 / min(w_nn, w_txtx, w_tyty)`` of sect. 8.
+    with the per-contact ``rho = 1 / min(w_nn, w_txtx, w_tyty)`` of sect. 8,
+    safeguarded: all ``rho`` are halved whenever the residual grows or stalls.
 ``"newton"``
     Semismooth Newton on the Alart-Curnier equations of the equivalent isotropic
     problem ``FC(D W D, D q, mu = 1)``, ``r = D s``, ``D = diag(1, mu_x, mu_y)``,
@@ -37,7 +38,9 @@ METHODS = ("uzawa", "newton")
 _ARMIJO_SIGMA = 1e-4
 _MIN_STEP = 2.0**-30
 _NONMONOTONE_MEMORY = 5
-_DIVERGED = 1e8
+_GROWTH = 2.0  # residual growth that halves the Uzawa step
+_STALL_CHECKS = 5  # checks (10 iterations each) ...
+_STALL_RATIO = 0.5  # ... over which the residual must at least halve
 
 
 @dataclass(frozen=True)
@@ -184,31 +187,42 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     wmin = positive.min(axis=1)
     # a contact with no flexibility at all does not move: any rho works
     rho = np.where(np.isfinite(wmin), 1.0 / np.where(np.isfinite(wmin), wmin, 1.0), 1.0)[:, None]
+    # The paper's rho makes the simultaneous update a contraction only when W is
+    # close to block diagonal.  A flexibility matrix of a continuum is not (one
+    # nodal force moves its neighbours almost as much as itself), and the plain
+    # iteration then diverges or cycles.  Safeguard: when the residual grows, or
+    # falls by less than _STALL_RATIO over _STALL_CHECKS checks, restart from the
+    # best iterate with all rho halved (omega below).
+    omega = 1.0
     history = []
     check_every = 10
-    # reaction scale of the problem: |q| / |W| bounds a converged r by orders of magnitude
-    r_scale = max(np.abs(q).max() / max(np.abs(W).max(), 1e-300), np.abs(r).max(), 1e-300)
-    r_last = r
+    best_r, best_res = r, np.inf
+    segment: list[float] = []  # residuals since the last restart
     it = 0
-    residual = np.inf
     while it < max_iter:
         u = (W @ r.ravel()).reshape(n, 3) + q
         if it % check_every == 0:
             residual = natural_map_residual(r, u, q, mx, my)
             history.append(residual)
-            # divergence (the fixed point is not a contraction for this W) is
-            # reported with the last finite iterate, not as overflow
-            if residual <= tol or not np.isfinite(residual) or np.abs(r).max() > _DIVERGED * r_scale:
+            if residual <= tol:
                 break
-            r_last = r
-        r = project_elliptic_cone(r - rho * modified_velocity(u, mx, my), mx, my)
+            if residual < best_res:
+                best_r, best_res = r, residual
+            segment.append(residual)
+            stalled = len(segment) > _STALL_CHECKS and residual > _STALL_RATIO * segment[-_STALL_CHECKS - 1]
+            if not np.isfinite(residual) or residual > _GROWTH * best_res or stalled:
+                omega *= 0.5
+                r = best_r
+                u = (W @ r.ravel()).reshape(n, 3) + q
+                segment = []
+        r = project_elliptic_cone(r - omega * rho * modified_velocity(u, mx, my), mx, my)
         it += 1
-    if not np.isfinite(residual) or np.abs(r).max() > _DIVERGED * r_scale:
-        r = r_last
     u = (W @ r.ravel()).reshape(n, 3) + q
     residual = natural_map_residual(r, u, q, mx, my)
-    if not history or history[-1] != residual:
-        history.append(residual)
+    if residual > best_res:
+        r, residual = best_r, best_res
+        u = (W @ r.ravel()).reshape(n, 3) + q
+    history.append(residual)
     return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), "uzawa")
 
 
@@ -254,6 +268,20 @@ def _alart_curnier(s, Ws, qs, mu, rho, fixed):
     return F, J.reshape(m, m)
 
 
+def _well_conditioned(A) -> bool:
+    """Cheap test that the symmetric matrix ``A`` is safely positive definite.
+
+    The smallest Cholesky pivot squared bounds the smallest eigenvalue from above
+    only loosely, so this errs towards regularising, which costs iterations, not
+    accuracy.
+    """
+    try:
+        L = np.linalg.cholesky(0.5 * (A + A.T))
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.min(np.diag(L)) ** 2 > 1e-8 * np.max(np.diag(A)))
+
+
 def _newton(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     n = q.shape[0]
     frictionless = (mx == 0) & (my == 0)
@@ -271,8 +299,7 @@ def _newton(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     # Newton matrix singular; proximal-point regularisation (solve
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
     # same fixed point.  An SPD W needs none.
-    eig = np.linalg.eigvalsh(0.5 * (Ws + Ws.T))
-    eta = 0.0 if eig[0] > 1e-8 * eig[-1] else 1e-2 * w_ref
+    eta = 0.0 if _well_conditioned(Ws) else 1e-2 * w_ref
     eye = np.eye(3 * n)
 
     with np.errstate(divide="ignore", invalid="ignore"):
