@@ -6,13 +6,14 @@ orthotropy frame maps onto it exactly by ``D = diag(1, mu_x, mu_y)`` per contact
 
     W' = D W D,   q' = D q,   mu' = 1,   r = D s,   u' = D u
 
-(``s`` solves the isotropic problem iff ``r`` solves the elliptic one, the
-De Saxce velocity ``(u_n + ||M u_t||, u_t)`` being ``D^-1`` times the isotropic one).
-Contacts whose cone is already circular (``mu_x == mu_y``, frictionless included)
-are written as they are (``D = I``, ``mu' = mu_x``), so an isotropic problem is
-stored as plain FCLIB.  A contact with exactly one zero coefficient keeps the
-exact scaling with a zero in ``D``; the rows and columns of ``W`` it erases are
-kept in the extra group.
+(``D K_1 = K_mu`` and the De Saxce velocity ``(u_n + ||M u_t||, u_t)`` is ``D^-1``
+times the isotropic one, so ``s`` solves the isotropic problem iff ``r`` solves the
+elliptic one).  Contacts whose cone is already circular (``mu_x == mu_y``,
+frictionless included) are written as they are (``D = I``, ``mu' = mu_x``), so an
+isotropic problem is stored as plain FCLIB.  A contact with exactly one zero
+coefficient keeps the scaling with a zero in ``D``: every isotropic solution ``s``
+still maps to a solution ``r = D s`` (``s = 0`` is written on that axis), and the
+rows and columns of ``W`` that ``D`` erases are kept in the extra group.
 
 The extra group ``/pushplan_anisotropy`` (ignored by other FCLIB readers) holds
 ``mu_x``, ``mu_y``, ``angle`` and the ``scaling`` diagonal ``D`` (shape (nc, 3)),
@@ -244,8 +245,7 @@ def write_local_problem(
             _write_string(info, name, text)
         if r is not None:
             sol = f.create_group("solution")
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
+            s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
             sol.create_dataset("r", data=s.ravel())
             sol.create_dataset("u", data=(D * u).ravel())
         g = f.create_group(ANISOTROPY_GROUP)

@@ -7,12 +7,14 @@ Exit status: 0 success, 2 bad input (one-line message, nothing written),
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from pathlib import Path
 
 EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
+COMMAND_MODULES: list[str] = []  # e.g. "pushplan.paper"; see build_parser
 
 
 class CliError(Exception):
@@ -88,6 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="main job: the paper's three friction cases")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.set_defaults(func=cmd_demo)
+
+    # Further subcommands live next to their code: each module has
+    # ``register(subparsers)`` adding its parser with ``set_defaults(func=...)``,
+    # and imports heavy dependencies (casadi, mujoco, rerun) inside ``func`` only.
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
     return parser
 
 
