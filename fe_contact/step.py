@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -30,6 +30,7 @@ from .local_solver import solve_local
 from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
+_SOLVE_THREADS = 2
 SEPARATION_FORCE = 1e-9
 """Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
 SLIP_DISPLACEMENT = 1e-9
@@ -63,7 +64,12 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
 
 
 class _Tangent:
-    """Factorised free-dof tangent and the flexibility data derived from it."""
+    """Factorised free-dof tangent and the flexibility matrix derived from it.
+
+    ``W`` needs ``K_ff^-1`` applied to one unit vector per contact dof; the
+    triangular solves dominate a step, so they run on ``_SOLVE_THREADS``
+    threads (SuperLU releases the GIL).
+    """
 
     def __init__(self, model: Model, K):
         free = model.free_dofs
@@ -72,14 +78,30 @@ class _Tangent:
         n_lower = model.n_contacts
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
         self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
-        E = np.zeros((free.size, 3 * n_lower))
-        E[self.contact_index, np.arange(3 * n_lower)] = 1.0
-        self.response = self.lu.solve(E)  # (n_free, 3 n_lower): K_ff^-1 C^T (world)
-        G = self.response[self.contact_index].reshape(n_lower, 3, n_lower, 3)
+        self.n_free = free.size
+        columns = np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS)
+
+        def contact_block(cols):
+            E = np.zeros((self.n_free, cols.size))
+            E[self.contact_index[cols], np.arange(cols.size)] = 1.0
+            return self.lu.solve(E)[self.contact_index]
+
+        with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
+            G = np.hstack(list(pool.map(contact_block, columns)))
+        G = G.reshape(n_lower, 3, n_lower, 3)
         G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
         T = model.frame
         self.W = np.einsum("ij,ajbk,lk->aibl", T, G, T).reshape(3 * n_lower, 3 * n_lower)
         self.w_mean = float(np.mean(np.diag(self.W)))
+
+    def solve(self, rhs_free: np.ndarray) -> np.ndarray:
+        return self.lu.solve(rhs_free)
+
+    def contact_response(self, force_world: np.ndarray) -> np.ndarray:
+        """``K_ff^-1 C^T f`` for contact-node forces ``f`` (n_lower, 3), world frame."""
+        rhs = np.zeros(self.n_free)
+        rhs[self.contact_index] = force_world.ravel()
+        return self.lu.solve(rhs)
 
 
 def step(model: Model, state: State, command: Command) -> tuple[State, StepReport]:
@@ -128,7 +150,10 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
 
     status, message = Status.NEWTON_NOT_CONVERGED, ""
     logs: list[IterLog] = []
-    tangent = None
+    tangent = state.tangent if opts.reuse_tangent else None
+    prev_res = math.inf
+    n_tangents = 0
+    timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
     local = None
     rel_res = math.inf
     min_det = math.nan
@@ -136,12 +161,14 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
     scale0 = 0.0
     for it in range(opts.newton_max_iter + 1):
         need_tangent = tangent is None or not opts.reuse_tangent
+        t_phase = time.perf_counter()
         if need_tangent:
             f_int, K, min_det = internal_force_and_tangent(
                 model.geometry, mesh.elements, U, model.material, model.pattern
             )
         else:
             f_int, min_det = internal_force(model.geometry, mesh.elements, U, model.material)
+        timings["assembly"] += time.perf_counter() - t_phase
         if not np.all(np.isfinite(f_int)) or not math.isfinite(min_det):
             status, message = Status.NOT_FINITE, f"non-finite internal force at Newton iteration {it}"
             break
@@ -172,20 +199,35 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
                 f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})"
             )
             break
+        if not need_tangent and rel_res > opts.refresh_ratio * prev_res:
+            # the reused tangent contracts too slowly here: refresh it
+            t_phase = time.perf_counter()
+            _, K, _ = internal_force_and_tangent(model.geometry, mesh.elements, U, model.material, model.pattern)
+            timings["assembly"] += time.perf_counter() - t_phase
+            need_tangent = True
+        prev_res = rel_res
+        t_phase = time.perf_counter()
         if need_tangent:
             tangent = _Tangent(model, K)
-        dU_free = tangent.lu.solve(-R)
+            n_tangents += 1
+        timings["tangent"] += time.perf_counter() - t_phase
+        t_phase = time.perf_counter()
+        dU_free = tangent.solve(-R)
         dw0 = dU_free[tangent.contact_index].reshape(-1, 3)
         w = U[lower] - U_start_lower
         w[:, 2] = mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
         q = (w + dw0) @ T.T - (tangent.W @ r.ravel()).reshape(-1, 3)
+        timings["solve"] += time.perf_counter() - t_phase
+        t_phase = time.perf_counter()
         # dividing u = W r + q by the mean compliance gives u force units, so the
         # natural-map residual (r - proj(r - modified(u))) is homogeneous; the
         # contact law is invariant under this scaling of u.
         local = solve_local(
             tangent.W / tangent.w_mean, q / tangent.w_mean, mu_x, mu_y,
             method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
+            assume_spd=True,  # K_ff is SPD with the upper face prescribed
         )
+        timings["local"] += time.perf_counter() - t_phase
         logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
         if not local.converged:
             status = Status.CONTACT_NOT_CONVERGED
@@ -194,8 +236,9 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
                 f"residual {local.residual:.3g} after {local.iterations} iterations"
             )
             break
-        dr_world = ((local.r - r) @ T).ravel()
-        dU_free = dU_free + tangent.response @ dr_world
+        t_phase = time.perf_counter()
+        dU_free = dU_free + tangent.contact_response((local.r - r) @ T)
+        timings["solve"] += time.perf_counter() - t_phase
         U_flat = U.ravel()
         U_flat[free] += dU_free
         U = U_flat.reshape(-1, 3)
@@ -253,6 +296,8 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
         min_det_f=float(min_det),
         wall_time=time.perf_counter() - t0,
         iterations=tuple(logs),
+        tangent_updates=n_tangents,
+        timings=timings,
     )
     if status is not Status.CONVERGED:
         return state, report
@@ -263,6 +308,7 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
         upper_rotation=rotation,
         slip_path=slip_path,
         step_index=state.step_index + 1,
+        tangent=tangent if opts.reuse_tangent else None,
     )
     return new_state, report
 

@@ -196,11 +196,12 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     if not isinstance(loads, list):
         raise ScenarioError(f"load must be an array of tables ([[load]]), got {loads!r}")
     commands = [c for i, e in enumerate(loads) for c in _load_entry(i, e)]
-    solver_keys = {"local_method", "local_tol", "local_max_iter", "newton_tol", "newton_max_iter", "reuse_tangent"}
+    solver_keys = {"local_method", "local_tol", "local_max_iter", "newton_tol", "newton_max_iter", "reuse_tangent",
+                   "refresh_ratio"}
     sv = _table(data, "solver", solver_keys, required=False)
     if "local_method" in sv and sv["local_method"] not in LOCAL_METHODS:
         raise ScenarioError(f"solver.local_method must be one of {LOCAL_METHODS}, got {sv['local_method']!r}")
-    for k in ("local_tol", "newton_tol"):
+    for k in ("local_tol", "newton_tol", "refresh_ratio"):
         if k in sv:
             _number(f"solver.{k}", sv[k], positive=True, hi=1.0)
     for k in ("local_max_iter", "newton_max_iter"):

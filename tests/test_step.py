@@ -18,7 +18,7 @@ TWIST_ISO_DEG = 1e-6
 PAPER_SIZE = (0.020, 0.020, 0.010)
 STEEL = dict(young=210e9, poisson=0.3)
 PUSH = 0.32e-3
-OPTS = SolverOptions(local_method="newton")
+OPTS = SolverOptions()  # defaults: semismooth-Newton local solver, reused tangent
 
 
 def make_model(mu_x, mu_y, angle_deg=0.0, divisions=(6, 6, 2), quadrature=2, size=PAPER_SIZE,
@@ -229,3 +229,31 @@ def test_mesh_refinement_converges():
     d1 = np.abs(values[1] - values[0])
     d2 = np.abs(values[2] - values[1])
     assert np.all(d2 < d1 + 1e-12 * np.abs(values[2])), (d1, d2)
+
+
+def test_reused_tangent_gives_the_same_steps():
+    """Modified Newton (tangent kept across iterations and steps) is a fast path
+    to the same solution: compare it with full Newton on every step."""
+    cmds = paper_commands(n_push=2) + [Command(dtheta=math.radians(1.0))]
+    full = make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(reuse_tangent=False))
+    fast = make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(reuse_tangent=True))
+    _, ra = run(full, cmds)
+    _, rb = run(fast, cmds)
+    check_every_step(rb)
+    for x, y in zip(ra, rb):
+        np.testing.assert_allclose(y.displacement, x.displacement, atol=SOLVER_ATOL_REL * np.abs(x.displacement).max())
+        np.testing.assert_allclose(y.reaction_world, x.reaction_world, atol=SOLVER_ATOL_REL * np.abs(x.reaction_world).max())
+    # the point of the fast path: fewer flexibility matrices than Newton iterations
+    assert sum(r.tangent_updates for r in rb) < sum(r.newton_iterations for r in rb)
+
+
+def test_paper_uzawa_and_newton_local_solvers_give_the_same_steps():
+    """The paper's Uzawa loop and the semismooth Newton local solver solve the
+    same contact problems: whole runs agree to the solver tolerances."""
+    cmds = paper_commands(n_push=1)
+    _, ra = run(make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(local_method="uzawa")), cmds)
+    _, rb = run(make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(local_method="newton")), cmds)
+    check_every_step(ra)
+    for x, y in zip(ra, rb):
+        np.testing.assert_allclose(x.displacement, y.displacement, atol=SOLVER_ATOL_REL * np.abs(y.displacement).max())
+        np.testing.assert_allclose(x.reaction_world, y.reaction_world, atol=SOLVER_ATOL_REL * np.abs(y.reaction_world).max())
