@@ -104,7 +104,7 @@ class _Tangent:
         return self.lu.solve(rhs)
 
 
-def step(model: Model, state: State, command: Command) -> tuple[State, StepReport]:
+def step(model: Model, state: State, command: Command, local_problem_hook=None) -> tuple[State, StepReport]:
     """Apply one load step.
 
     Parameters
@@ -114,6 +114,13 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
         State at the start of the step (not modified).
     command : Command
         Rigid motion increment of the upper face.
+    local_problem_hook : callable, optional
+        Called as ``hook(W, q, solution)`` after every local contact solve with
+        the problem exactly as the local solver got it: ``u = W r + q`` in the
+        local frames, divided by the mean diagonal compliance so that ``W`` is
+        dimensionless and ``q``, ``u`` are in N like ``r``; ``solution`` is the
+        :class:`~fe_contact.local_solver.LocalSolution`.  For exporting the
+        problems (FCLIB) or studying solvers; the hook must not modify them.
 
     Returns
     -------
@@ -162,7 +169,15 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
     for it in range(opts.newton_max_iter + 1):
         need_tangent = tangent is None or not opts.reuse_tangent
         t_phase = time.perf_counter()
-        if need_tangent:
+        if need_tangent and opts.reuse_tangent and it == 0:
+            # A tangent kept for many iterations is best taken at the converged
+            # start of the step: the predictor (upper face moved, the rest not)
+            # strains the top layer far more than the solution does.
+            _, K, _ = internal_force_and_tangent(
+                model.geometry, mesh.elements, state.displacement, model.material, model.pattern
+            )
+            f_int, min_det = internal_force(model.geometry, mesh.elements, U, model.material)
+        elif need_tangent:
             f_int, K, min_det = internal_force_and_tangent(
                 model.geometry, mesh.elements, U, model.material, model.pattern
             )
@@ -222,12 +237,15 @@ def step(model: Model, state: State, command: Command) -> tuple[State, StepRepor
         # dividing u = W r + q by the mean compliance gives u force units, so the
         # natural-map residual (r - proj(r - modified(u))) is homogeneous; the
         # contact law is invariant under this scaling of u.
+        W_scaled, q_scaled = tangent.W / tangent.w_mean, q / tangent.w_mean
         local = solve_local(
-            tangent.W / tangent.w_mean, q / tangent.w_mean, mu_x, mu_y,
+            W_scaled, q_scaled, mu_x, mu_y,
             method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
             assume_spd=True,  # K_ff is SPD with the upper face prescribed
         )
         timings["local"] += time.perf_counter() - t_phase
+        if local_problem_hook is not None:
+            local_problem_hook(W_scaled, q_scaled, local)
         logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
         if not local.converged:
             status = Status.CONTACT_NOT_CONVERGED

@@ -1,0 +1,76 @@
+"""Scaling of one compression step plus one push step with the number of dofs.
+
+Blocks of the paper's proportions (2 : 2 : 1) with ``n x n x n/2`` hex8
+(quadrature 2) at about 1e3, 1e4, 5e4 and 2e5 dofs.  Each size runs in its own
+process so its peak memory (``ru_maxrss``) is its own; a size that exceeds
+``--timeout`` seconds is reported as such.  Fits the exponent of time vs dofs
+over the sizes that finished.
+
+    python benchmarks/scaling.py [--sizes 8 18 32 52] [--timeout 900]
+
+Prints a table and writes ``benchmarks/results/scaling.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from _common import write_results
+
+CHILD = r"""
+import json, resource, sys, time
+from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh, initial_state, step
+n = int(sys.argv[1])
+model = Model(block_mesh((0.02, 0.02, 0.01), (n, n, max(1, n // 2))), Material(210e9, 0.3),
+              Friction(0.3, 0.05, 0.0), quadrature=2, options=SolverOptions())
+state = initial_state(model)
+t0 = time.perf_counter()
+out = {"n": n, "dofs": model.mesh.n_dofs, "contacts": model.n_contacts, "steps": []}
+for cmd in (Command(dz=-1e-4), Command(dx=2.26e-4, dy=2.26e-4)):
+    state, rep = step(model, state, cmd)
+    out["steps"].append({"wall_s": rep.wall_time, "converged": rep.converged, **rep.timings})
+out["wall_s"] = time.perf_counter() - t0
+out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps(out))
+"""
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[8, 18, 32, 52])
+    parser.add_argument("--timeout", type=float, default=900.0)
+    args = parser.parse_args(argv)
+    rows = []
+    for n in args.sizes:
+        try:
+            proc = subprocess.run([sys.executable, "-c", CHILD, str(n)], capture_output=True, text=True,
+                                  timeout=args.timeout, check=True)
+            row = json.loads(proc.stdout.strip().splitlines()[-1])
+        except subprocess.TimeoutExpired:
+            row = {"n": n, "timeout_s": args.timeout}
+        except subprocess.CalledProcessError as exc:
+            row = {"n": n, "error": exc.stderr.strip().splitlines()[-1] if exc.stderr else str(exc)}
+        rows.append(row)
+        if "wall_s" in row:
+            print(f"n={n:>3}  dofs={row['dofs']:>7}  contacts={row['contacts']:>5}  "
+                  f"wall={row['wall_s']:8.2f} s  peak={row['peak_rss_mb']:8.0f} MB", flush=True)
+        else:
+            print(f"n={n:>3}  {row}", flush=True)
+    done = [r for r in rows if "wall_s" in r]
+    exponent = None
+    if len(done) >= 2:
+        exponent = float(np.polyfit(np.log([r["dofs"] for r in done]), np.log([r["wall_s"] for r in done]), 1)[0])
+        print(f"time ~ dofs^{exponent:.2f} over {len(done)} sizes")
+    path = write_results("scaling", {"rows": rows, "exponent": exponent})
+    print(f"wrote {path}")
+    return {"rows": rows, "exponent": exponent}
+
+
+if __name__ == "__main__":
+    main()
