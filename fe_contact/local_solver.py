@@ -251,26 +251,38 @@ def _alart_curnier(s, Ws, qs, mu, rho, fixed):
     F[:, 0] = np.where(active, rho * u[:, 0], s[:, 0])
     F[:, 1:] = np.where(stick[:, None], rho[:, None] * u[:, 1:], s[:, 1:] - R[:, None] * zhat)
 
-    m = 3 * n
-    Wr = Ws.reshape(n, 3, m)
-    eye = np.eye(m).reshape(n, 3, m)
-    J = np.empty((n, 3, m))
-    J[:, 0] = np.where(active[:, None], rho[:, None] * Wr[:, 0], eye[:, 0])
-    # stick rows: rho * W_t
-    J_stick = rho[:, None, None] * Wr[:, 1:]
-    # slide rows: E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)
-    dR = np.where(active[:, None], mu[:, None] * (eye[:, 0] - rho[:, None] * Wr[:, 0]), 0.0)
-    dz = eye[:, 1:] - rho[:, None, None] * Wr[:, 1:]
+    # The Jacobian is blockdiag(P) + Q W with 3x3 blocks P, Q per contact:
+    #   normal row, active:   rho * W_n            (P = 0,   Q = rho e_n^T)
+    #   normal row, inactive: e_n                  (P = e_n, Q = 0)
+    #   tangent rows, stick:  rho * W_t            (P = 0,   Q = rho [0 I])
+    #   tangent rows, slide:  E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)
+    #                         with dR = mu (e_n - rho W_n) when active, else 0.
+    P = np.zeros((n, 3, 3))
+    Q = np.zeros((n, 3, 3))
+    P[:, 0, 0] = np.where(active, 0.0, 1.0)
+    Q[:, 0, 0] = np.where(active, rho, 0.0)
     proj = np.eye(2)[None] - zhat[:, :, None] * zhat[:, None, :]
     coef = np.where(zn > 0, R / np.where(zn > 0, zn, 1.0), 0.0)
-    J_slide = eye[:, 1:] - zhat[:, :, None] * dR[:, None, :] - coef[:, None, None] * np.einsum(
-        "cij,cjm->cim", proj, dz
+    mu_active = np.where(active, mu, 0.0)
+    P_slide = np.concatenate([-(mu_active[:, None] * zhat)[:, :, None], np.eye(2)[None] - coef[:, None, None] * proj], axis=2)
+    Q_slide = np.concatenate(
+        [(mu_active * rho)[:, None, None] * zhat[:, :, None], (coef * rho)[:, None, None] * proj], axis=2
     )
-    J[:, 1:] = np.where(stick[:, None, None], J_stick, J_slide)
-
+    Q_stick = np.zeros((n, 2, 3))
+    Q_stick[:, :, 1:] = rho[:, None, None] * np.eye(2)[None]
+    P[:, 1:] = np.where(stick[:, None, None], 0.0, P_slide)
+    Q[:, 1:] = np.where(stick[:, None, None], Q_stick, Q_slide)
+    # components pinned to zero: F = s, row e_i
+    P = np.where(fixed[:, :, None], np.eye(3)[None], P)
+    Q = np.where(fixed[:, :, None], 0.0, Q)
     F = np.where(fixed, s, F)
-    J = np.where(fixed[:, :, None], eye, J)
-    return F, J.reshape(m, m)
+
+    m = 3 * n
+    J = np.einsum("cij,cjm->cim", Q, Ws.reshape(n, 3, m)).reshape(m, m)
+    blocks = J.reshape(n, 3, n, 3)
+    idx = np.arange(n)
+    blocks[idx, :, idx, :] += P
+    return F, J
 
 
 def _well_conditioned(A) -> bool:
