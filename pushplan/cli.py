@@ -14,7 +14,7 @@ from pathlib import Path
 EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
-COMMAND_MODULES: list[str] = []  # e.g. "pushplan.paper"; see build_parser
+COMMAND_MODULES: list[str] = ["pushplan.paper", "pushplan.recording", "pushplan.mujoco_bridge", "pushplan.sweep"]  # see build_parser
 
 
 class CliError(Exception):
@@ -42,8 +42,12 @@ def cmd_simulate(args) -> int:
         from .plan_io import load_commands
 
         commands = load_commands(args.commands)
+    if not (scenario.commands if commands is None else commands):
+        raise CliError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
+    model = scenario.model()  # mesh and material checks before anything is written
     out = prepare_output_dir(args.out)
-    result = simulate(scenario, out, commands=commands, progress=not args.quiet)
+    result = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
+                      recording=not args.no_recording)
     _print_steps(result.summary)
     print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({result.summary['elapsed_s']:.2f} s)")
     if not result.completed:
@@ -85,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz)")
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("demo", help="main job: the paper's three friction cases")
@@ -105,7 +110,8 @@ def main(argv=None) -> int:
     try:
         return args.func(args)
     except (CliError, ValueError) as exc:  # ScenarioError is a ValueError
-        print(f"pushplan: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())  # one line, whatever the exception text
+        print(f"pushplan: error: {message}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
 

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)  # read the process umask once: mkstemp files are 0600, outputs should not be
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:
@@ -17,6 +21,7 @@ def atomic_write_bytes(path, data: bytes) -> Path:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)
@@ -35,9 +40,26 @@ def _json_default(obj):
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+def _finite_only(obj):
+    """``obj`` with NaN and infinities replaced by None (strict JSON has no such numbers)."""
+    if isinstance(obj, dict):
+        return {k: _finite_only(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_only(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite_only(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
 def atomic_write_json(path, obj) -> Path:
-    """Serialise ``obj`` (numpy arrays allowed) as indented JSON, atomically."""
-    text = json.dumps(obj, indent=2, default=_json_default, allow_nan=True)
+    """Serialise ``obj`` (numpy arrays allowed) as indented strict JSON, atomically;
+    NaN and infinities are written as ``null``."""
+    try:
+        text = json.dumps(obj, indent=2, default=_json_default, allow_nan=False)
+    except ValueError:
+        text = json.dumps(_finite_only(obj), indent=2, default=_json_default, allow_nan=False)
     return atomic_write_bytes(path, (text + "\n").encode())
 
 

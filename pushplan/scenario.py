@@ -42,6 +42,10 @@ from fe_contact import Command, Friction, Material, Model, SolverOptions, block_
 from fe_contact.model import LOCAL_METHODS
 
 EXTRA_TABLES = ("plan", "mujoco", "sweep")
+MAX_STEPS = 100_000
+"""Most load steps a scenario may expand to (``repeat`` included): a guard against typos."""
+MAX_ELEMENTS = 1_000_000
+"""Most hex8 elements of a block: far beyond what fits in memory (dense flexibility matrix)."""
 
 
 class ScenarioError(ValueError):
@@ -159,6 +163,8 @@ def _load_entry(i: int, entry: Any) -> list[Command]:
     dz = _number(f"{key}.dz", entry.get("dz", 0.0))
     dtheta = math.radians(_number(f"{key}.dtheta_deg", entry.get("dtheta_deg", 0.0)))
     repeat = _integer(f"{key}.repeat", entry.get("repeat", 1), 1)
+    if repeat > MAX_STEPS:
+        raise ScenarioError(f"{key}.repeat must be <= {MAX_STEPS}, got {repeat}")
     return [Command(dx, dy, dz, dtheta)] * repeat
 
 
@@ -168,14 +174,17 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     for k in data:
         if k not in top:
             raise ScenarioError(f"unknown key {k} (allowed: {', '.join(sorted(top))})")
-    if "name" in data and not isinstance(data["name"], str):
-        raise ScenarioError(f"name must be a string, got {data['name']!r}")
+    for k in ("name", "description"):
+        if k in data and not isinstance(data[k], str):
+            raise ScenarioError(f"{k} must be a string, got {data[k]!r}")
     block = _table(data, "block", {"size", "elements", "quadrature"})
     for k in ("size", "elements"):
         if k not in block:
             raise ScenarioError(f"missing key block.{k}")
     size = _triple("block.size", block["size"], lambda k, v: _number(k, v, positive=True))
     elements = _triple("block.elements", block["elements"], lambda k, v: _integer(k, v, 1))
+    if math.prod(elements) > MAX_ELEMENTS:
+        raise ScenarioError(f"block.elements must give at most {MAX_ELEMENTS} elements, got {elements}")
     quadrature = _integer("block.quadrature", block.get("quadrature", 3), 1)
     if quadrature > 3:
         raise ScenarioError(f"block.quadrature must be 1, 2 or 3, got {quadrature}")
@@ -196,6 +205,8 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     if not isinstance(loads, list):
         raise ScenarioError(f"load must be an array of tables ([[load]]), got {loads!r}")
     commands = [c for i, e in enumerate(loads) for c in _load_entry(i, e)]
+    if len(commands) > MAX_STEPS:
+        raise ScenarioError(f"load must expand to at most {MAX_STEPS} steps, got {len(commands)}")
     solver_keys = {"local_method", "local_tol", "local_max_iter", "newton_tol", "newton_max_iter", "reuse_tangent",
                    "refresh_ratio"}
     sv = _table(data, "solver", solver_keys, required=False)
@@ -226,6 +237,27 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     )
 
 
+def read_toml(path, what: str = "scenario") -> dict:
+    """Parse a TOML file into a dict; ``what`` names the file kind in messages.
+
+    Raises
+    ------
+    ScenarioError
+        Missing or unreadable file, malformed TOML.
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        raise ScenarioError(f"{what} file not found: {path}") from None
+    except OSError as exc:
+        raise ScenarioError(f"cannot read {what} file {path}: {exc.strerror}") from None
+    try:
+        return tomllib.loads(text.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"malformed TOML in {path}: {exc}") from None
+
+
 def load_scenario(path) -> Scenario:
     """Read and validate a TOML scenario file.
 
@@ -234,15 +266,4 @@ def load_scenario(path) -> Scenario:
     ScenarioError
         Missing or unreadable file, malformed TOML, unknown key or bad value.
     """
-    path = Path(path)
-    try:
-        text = path.read_bytes()
-    except FileNotFoundError:
-        raise ScenarioError(f"scenario file not found: {path}") from None
-    except OSError as exc:
-        raise ScenarioError(f"cannot read scenario file {path}: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"malformed TOML in {path}: {exc}") from None
-    return parse_scenario(data, name=path.stem)
+    return parse_scenario(read_toml(path), name=Path(path).stem)

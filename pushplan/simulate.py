@@ -7,6 +7,9 @@ Outputs in ``DIR``:
     or ``"failed"``), ``failure`` (null or the failing step's status and message),
     and ``steps``: one object per finished load step (see :func:`step_summary`).
     Rewritten atomically after every step, so a failing run keeps its finished steps.
+``recording.rrd``
+    rerun recording of the run (see :mod:`pushplan.recording`), unless
+    ``recording=False``.
 ``fields.npz``
     Reference mesh (``nodes`` (n,3) m, ``elements`` (e,8), ``lower``, ``upper`` node ids,
     ``lower_area`` (n_lower,) m^2) and per-step nodal fields stacked on a leading
@@ -20,6 +23,7 @@ Outputs in ``DIR``:
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -104,6 +108,7 @@ def simulate(
     model: Model | None = None,
     state: State | None = None,
     progress: bool = False,
+    recording: bool | str | os.PathLike = True,
 ) -> SimulationResult:
     """Run the scenario's load steps (or ``commands``) and, with ``out_dir``, write
     ``summary.json`` and ``fields.npz`` there.
@@ -119,6 +124,9 @@ def simulate(
         Reuse a model / start from a state (defaults: ``scenario.model()``, rest).
     progress : bool
         Print a progress bar on stderr.
+    recording : bool or path
+        ``True``: write ``out_dir/recording.rrd`` when ``out_dir`` is given; a path:
+        write the rerun recording there; ``False``: none.
     """
     t0 = time.perf_counter()
     model = model or scenario.model()
@@ -135,25 +143,45 @@ def simulate(
     summary = {"scenario": resolved, "elapsed_s": 0.0, "status": "running", "failure": None, "steps": []}
     fields = {name: [] for name in FIELD_NAMES}
     out = Path(out_dir) if out_dir is not None else None
-    for i, cmd in enumerate(commands, start=1):
-        state, rep = step(model, state, cmd)
-        result.reports.append(rep)
-        if progress:
-            _progress(i, len(commands), rep, sys.stderr)
-        if rep.converged:
-            summary["steps"].append(step_summary(rep))
-            for name in FIELD_NAMES:
-                fields[name].append(getattr(rep, name))
+    recorder = None
+    if recording is not False and (recording is not True or out is not None):
+        from .recording import RECORDING_FILE, Recorder
+
+        path = out / RECORDING_FILE if recording is True else Path(recording)
+        recorder = Recorder(path, scenario.name, model.mesh, scenario=resolved)
+    try:
+        for i, cmd in enumerate(commands, start=1):
+            try:
+                state, rep = step(model, state, cmd)
+            except (ValueError, ArithmeticError, RuntimeError) as exc:
+                # a numerical breakdown the step did not turn into a status (singular
+                # factorisation, ill-conditioned flexibility matrix) is still a failure
+                summary["failure"] = {"step": state.step_index + 1, "status": "exception",
+                                      "message": f"{type(exc).__name__}: {exc}"}
+                summary["status"] = "failed"
+                break
+            result.reports.append(rep)
+            if progress:
+                _progress(i, len(commands), rep, sys.stderr)
+            if rep.converged:
+                summary["steps"].append(step_summary(rep))
+                for name in FIELD_NAMES:
+                    fields[name].append(getattr(rep, name))
+            else:
+                summary["failure"] = {"step": rep.step_index, "status": rep.status.value, "message": rep.message}
+            if recorder is not None:
+                recorder.log_step(rep, summary["steps"][-1] if rep.converged else None)
+            summary["status"] = "running" if rep.converged else "failed"
+            summary["elapsed_s"] = time.perf_counter() - t0
+            if out is not None:
+                atomic_write_json(out / "summary.json", summary)
+            if not rep.converged:
+                break
         else:
-            summary["failure"] = {"step": rep.step_index, "status": rep.status.value, "message": rep.message}
-        summary["status"] = "running" if rep.converged else "failed"
-        summary["elapsed_s"] = time.perf_counter() - t0
-        if out is not None:
-            atomic_write_json(out / "summary.json", summary)
-        if not rep.converged:
-            break
-    else:
-        summary["status"] = "completed"
+            summary["status"] = "completed"
+    finally:
+        if recorder is not None:
+            recorder.close()
     summary["elapsed_s"] = time.perf_counter() - t0
     result.state = state
     result.summary = summary
