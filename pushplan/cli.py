@@ -46,8 +46,9 @@ def cmd_simulate(args) -> int:
         raise CliError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
     model = scenario.model()  # mesh and material checks before anything is written
     out = prepare_output_dir(args.out)
+    fclib_dir = prepare_output_dir(args.export_fclib) if args.export_fclib else None
     result = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
-                      recording=not args.no_recording)
+                      recording=not args.no_recording, export_fclib=fclib_dir)
     _print_steps(result.summary)
     print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({result.summary['elapsed_s']:.2f} s)")
     if not result.completed:
@@ -90,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
+    p.add_argument("--export-fclib", metavar="DIR",
+                   help="write each step's last local contact problem to DIR/step_NNN.hdf5 (FCLIB)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("demo", help="main job: the paper's three friction cases")

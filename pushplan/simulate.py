@@ -101,6 +101,23 @@ def _progress(i: int, n: int, report: StepReport, stream) -> None:
     stream.flush()
 
 
+def _export_local_problem(folder: Path, scenario: Scenario, model: Model, rep: StepReport, W, q, sol) -> None:
+    from fe_contact.fclib import write_local_problem
+
+    friction = model.friction
+    write_local_problem(
+        folder / f"step_{rep.step_index:03d}.hdf5", W, q, friction.mu_x, friction.mu_y, angle=friction.angle,
+        title=f"pushplan {scenario.name} step {rep.step_index}",
+        description=(
+            f"Last local contact problem of load step {rep.step_index} ({rep.status.value}) of scenario "
+            f"{scenario.name}: {model.n_contacts} lower-face nodes of a hex8 block on a plane, elliptic "
+            f"friction mu_x={friction.mu_x}, mu_y={friction.mu_y}. W and q are divided by the mean "
+            "diagonal compliance of W (so q, u are in N like r); r, u are pushplan's solution."
+        ),
+        r=sol.r, u=sol.u,
+    )
+
+
 def simulate(
     scenario: Scenario,
     out_dir=None,
@@ -109,6 +126,7 @@ def simulate(
     state: State | None = None,
     progress: bool = False,
     recording: bool | str | os.PathLike = True,
+    export_fclib: str | os.PathLike | None = None,
 ) -> SimulationResult:
     """Run the scenario's load steps (or ``commands``) and, with ``out_dir``, write
     ``summary.json`` and ``fields.npz`` there.
@@ -127,6 +145,10 @@ def simulate(
     recording : bool or path
         ``True``: write ``out_dir/recording.rrd`` when ``out_dir`` is given; a path:
         write the rerun recording there; ``False``: none.
+    export_fclib : path, optional
+        Existing folder: the last (converged) local contact problem of every
+        step is written there as ``step_NNN.hdf5`` in FCLIB form (see
+        :func:`fe_contact.fclib.write_local_problem`), for external solvers.
     """
     t0 = time.perf_counter()
     model = model or scenario.model()
@@ -151,8 +173,13 @@ def simulate(
         recorder = Recorder(path, scenario.name, model.mesh, scenario=resolved)
     try:
         for i, cmd in enumerate(commands, start=1):
+            last_local: list = []  # the step's last local problem, for export_fclib
+
+            def keep_last(W, q, sol):
+                last_local[:] = [(W, q, sol)]
+
             try:
-                state, rep = step(model, state, cmd)
+                state, rep = step(model, state, cmd, local_problem_hook=keep_last if export_fclib is not None else None)
             except (ValueError, ArithmeticError, RuntimeError) as exc:
                 # a numerical breakdown the step did not turn into a status (singular
                 # factorisation, ill-conditioned flexibility matrix) is still a failure
@@ -163,6 +190,8 @@ def simulate(
             result.reports.append(rep)
             if progress:
                 _progress(i, len(commands), rep, sys.stderr)
+            if export_fclib is not None and last_local:
+                _export_local_problem(Path(export_fclib), scenario, model, rep, *last_local[0])
             if rep.converged:
                 summary["steps"].append(step_summary(rep))
                 for name in FIELD_NAMES:
