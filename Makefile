@@ -23,10 +23,10 @@ demo: $(STAMP)
 	$(BIN)/pushplan demo --out $(OUT)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -n 2 -q -m slow
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -m slow
 
 bench: $(STAMP)
 	for script in local_solvers paper_case scaling planner; do \

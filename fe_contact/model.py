@@ -167,8 +167,13 @@ class Model:
             raise ValueError(f"material must be a Material, got {type(self.material).__name__}")
         if not isinstance(self.friction, Friction):
             raise ValueError(f"friction must be a Friction, got {type(self.friction).__name__}")
-        if self.quadrature not in (1, 2, 3):
-            raise ValueError(f"quadrature must be 1, 2 or 3 points per direction, got {self.quadrature!r}")
+        if self.quadrature not in (2, 3):
+            # one point per element leaves the hex8 hourglass modes without
+            # stiffness: K_ff is singular and the flexibility matrix meaningless
+            raise ValueError(
+                f"quadrature must be 2 or 3 Gauss points per direction (1 leaves hourglass modes), "
+                f"got {self.quadrature!r}"
+            )
         mesh = self.mesh
         set_ = object.__setattr__
         set_(self, "geometry", element_geometry(mesh, self.quadrature))

@@ -14,7 +14,7 @@ from pathlib import Path
 EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
-COMMAND_MODULES: list[str] = ["pushplan.paper", "pushplan.recording", "pushplan.mujoco_bridge", "pushplan.sweep"]  # see build_parser
+COMMAND_MODULES: list[str] = ["pushplan.paper", "pushplan.recording", "pushplan.mujoco_bridge", "pushplan.sweep", "pushplan.planner"]  # see build_parser
 
 
 class CliError(Exception):
