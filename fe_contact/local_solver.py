@@ -323,7 +323,10 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
         s = np.where(D > 0, r / np.where(D > 0, D, 1.0), 0.0)
 
     def true_residual(s):
-        rr = s * D
+        # measured on the projected iterate, which is what is returned: a Newton
+        # iterate can sit slightly outside the cone, and projecting it afterwards
+        # could undo a convergence decided on the unprojected one
+        rr = project_elliptic_cone(s * D, mx, my)
         uu = (W @ rr.ravel()).reshape(n, 3) + q
         return natural_map_residual(rr, uu, q, mx, my)
 
@@ -362,9 +365,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
                 break
         if eta > 0:
             eta = max(0.2 * eta, 1e-10 * w_ref)
-    rr = s * D
-    # the Newton iterate may sit a rounding error outside the cone
-    r_final = project_elliptic_cone(rr, mx, my)
+    r_final = project_elliptic_cone(s * D, mx, my)
     u_final = (W @ r_final.ravel()).reshape(n, 3) + q
     residual = natural_map_residual(r_final, u_final, q, mx, my)
     history[-1] = residual

@@ -319,6 +319,7 @@ class Status(enum.Enum):
     CONTACT_NOT_CONVERGED = "contact_not_converged"
     ELEMENT_INVERTED = "element_inverted"
     NOT_FINITE = "not_finite"
+    TANGENT_SINGULAR = "tangent_singular"  # K_ff singular or too ill-conditioned for W
 
 
 class NodeStatus(enum.IntEnum):

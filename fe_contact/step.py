@@ -223,8 +223,22 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
         prev_res = rel_res
         t_phase = time.perf_counter()
         if need_tangent:
-            tangent = _Tangent(model, K)
+            try:
+                tangent = _Tangent(model, K)
+            except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+                status, message = Status.TANGENT_SINGULAR, f"tangent stiffness singular at Newton iteration {it}: {exc}"
+                break
             n_tangents += 1
+            w_diag = np.diag(tangent.W)
+            if not (np.all(np.isfinite(tangent.W)) and np.all(w_diag > 0)):
+                # a flexibility matrix must be positive definite; rounding has won
+                # (e.g. nearly incompressible material, nu -> 0.5)
+                status, message = (
+                    Status.TANGENT_SINGULAR,
+                    f"flexibility matrix not positive definite at Newton iteration {it} "
+                    f"(min diagonal {w_diag.min():.3g}): tangent stiffness too ill-conditioned",
+                )
+                break
         timings["tangent"] += time.perf_counter() - t_phase
         t_phase = time.perf_counter()
         dU_free = tangent.solve(-R)

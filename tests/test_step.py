@@ -257,3 +257,12 @@ def test_paper_uzawa_and_newton_local_solvers_give_the_same_steps():
     for x, y in zip(ra, rb):
         np.testing.assert_allclose(x.displacement, y.displacement, atol=SOLVER_ATOL_REL * np.abs(y.displacement).max())
         np.testing.assert_allclose(x.reaction_world, y.reaction_world, atol=SOLVER_ATOL_REL * np.abs(y.reaction_world).max())
+
+
+def test_ill_conditioned_tangent_is_reported_not_raised():
+    """nu -> 0.5 makes K_ff numerically singular: the step says so and keeps the state."""
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1), poisson=0.4999999)
+    s0 = initial_state(model)
+    s1, rep = step(model, s0, Command(dz=-0.1e-3))
+    assert rep.status.value == "tangent_singular", rep.message
+    assert s1 is s0
