@@ -58,21 +58,17 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .io import prepare_output_dir
-    from .scenario import load_scenario
-    from .simulate import simulate
-
-    out = prepare_output_dir(args.out)
+    """The main job: the paper reproduction, then a planning demo, into ``args.out``."""
+    out = Path(args.out)
+    jobs = [
+        ["paper", "--out", str(out / "paper")],
+        ["plan", str(SCENARIO_DIR / "plan_steel_case3.toml"), "--out", str(out / "plan_steel_case3")],
+    ]
     status = 0
-    for case in ("paper_case1", "paper_case2", "paper_case3"):
-        scenario = load_scenario(SCENARIO_DIR / f"{case}.toml")
-        print(f"== {case}: mu_x = {scenario.mu_x}, mu_y = {scenario.mu_y}, "
-              f"mesh {scenario.elements}, {scenario.quadrature}^3 Gauss points")
-        result = simulate(scenario, prepare_output_dir(out / case), progress=True)
-        _print_steps(result.summary)
-        if not result.completed:
-            status = EXIT_SOLVER_FAILURE
-    print(f"outputs in {out}/")
+    for argv in jobs:
+        print(f"== pushplan {' '.join(argv)}", flush=True)
+        status = max(status, main(argv))
+    print(f"outputs in {out}/: paper/report.md, paper/figures/, plan_steel_case3/plan.json, */recording.rrd")
     return status
 
 
@@ -95,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write each step's last local contact problem to DIR/step_NNN.hdf5 (FCLIB)")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("demo", help="main job: the paper's three friction cases")
+    p = sub.add_parser("demo", help="main job: the paper reproduction and a planning demo")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.set_defaults(func=cmd_demo)
 
