@@ -57,6 +57,13 @@ def _as_coefficients(mu_x, mu_y, n: int) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
+def _row_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``a`` without overflow or underflow of the squares."""
+    m = np.max(np.abs(a), axis=1)
+    safe = np.where(m > 0, m, 1.0)
+    return m * np.linalg.norm(a / safe[:, None], axis=1)
+
+
 def _prepare(name, v, mu_x, mu_y):
     a = _as_contacts(name, v)
     mx, my = _as_coefficients(mu_x, mu_y, a.shape[0])
@@ -90,10 +97,11 @@ def dual_elliptic_norm(v_t, mu_x, mu_y) -> np.ndarray:
 def in_cone(r, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
     """Boolean mask: ``r`` in ``K_mu`` up to ``tol * ||r||``."""
     a, mx, my = _prepare("r", r, mu_x, mu_y)
-    slack = tol * np.linalg.norm(a, axis=1)
+    slack = tol * _row_norms(a)
     # an axis without friction must carry no force; the others enter ||M^-1 r_t||
-    cx = np.where(mx > 0, a[:, 1] / np.where(mx > 0, mx, 1.0), 0.0)
-    cy = np.where(my > 0, a[:, 2] / np.where(my > 0, my, 1.0), 0.0)
+    with np.errstate(over="ignore"):  # inf for a tiny mu is the right answer: outside
+        cx = np.where(mx > 0, a[:, 1] / np.where(mx > 0, mx, 1.0), 0.0)
+        cy = np.where(my > 0, a[:, 2] / np.where(my > 0, my, 1.0), 0.0)
     free_ok = (np.where(mx > 0, 0.0, np.abs(a[:, 1])) <= slack) & (
         np.where(my > 0, 0.0, np.abs(a[:, 2])) <= slack
     )
@@ -103,7 +111,7 @@ def in_cone(r, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
 def in_polar_cone(v, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
     """Boolean mask: ``v`` in the polar cone, ``v_n + ||M v_t|| <= tol * ||v||``."""
     a, mx, my = _prepare("v", v, mu_x, mu_y)
-    return a[:, 0] + np.hypot(mx * a[:, 1], my * a[:, 2]) <= tol * np.linalg.norm(a, axis=1)
+    return a[:, 0] + np.hypot(mx * a[:, 1], my * a[:, 2]) <= tol * _row_norms(a)
 
 
 def modified_velocity(u, mu_x, mu_y) -> np.ndarray:
@@ -114,8 +122,8 @@ def modified_velocity(u, mu_x, mu_y) -> np.ndarray:
     return out
 
 
-def _boundary_multiplier(tn, tx, ty, mx, my) -> np.ndarray:
-    """Root ``t = r_n`` of the boundary-case equation of the projection.
+def _boundary_offset(tn, tx, ty, mx, my) -> tuple[np.ndarray, np.ndarray]:
+    """Root of the boundary-case equation of the projection: ``(t, delta)``.
 
     On the cone boundary the projection is ``r = (t, tau_tx mu_x^2 t / d_x,
     tau_ty mu_y^2 t / d_y)`` with ``d_i = (1 + mu_i^2) t - tau_n``, and ``t``
@@ -123,40 +131,46 @@ def _boundary_multiplier(tn, tx, ty, mx, my) -> np.ndarray:
     strictly decreasing on ``(max(tau_n, 0), inf)``, exceeds 1 at the left end
     (tau is outside both cones) and is <= 1 at
     ``t_hi = (tau_n + ||M tau_t||) / (1 + min mu_i^2)``: a safeguarded Newton
-    iteration on that bracket has exactly one root to find.  Inputs are
-    normalised (``||tau|| = 1``).  For ``mu_x = mu_y``, ``t_hi`` is the root.
+    iteration on that bracket has exactly one root to find.  For ``mu_x =
+    mu_y``, ``t_hi`` is the root.  The unknown is ``delta = t - tau_n``, so
+    that ``d_i = delta + mu_i^2 t`` keeps full relative precision for narrow
+    cones (``t - tau_n`` computed from ``t`` is pure rounding once ``mu < 1e-8``).
+    Inputs are normalised (``max |tau_i| = 1``).
     """
     ax, ay = tx * mx, ty * my
     sup = np.hypot(ax, ay)
     m2x, m2y = mx * mx, my * my
-    lo = np.maximum(tn, 0.0)
-    hi = (tn + sup) / (1.0 + np.minimum(m2x, m2y))
-    t = hi.copy()
-    active = np.ones(t.shape, dtype=bool)
+    m2min = np.minimum(m2x, m2y)
+    lo = np.maximum(-tn, 0.0)
+    hi = (sup - m2min * tn) / (1.0 + m2min)
+    delta = hi.copy()
+    active = np.ones(delta.shape, dtype=bool)
     for _ in range(_ROOT_MAX_ITER):
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        ti = t[idx]
-        dx = (1.0 + m2x[idx]) * ti - tn[idx]
-        dy = (1.0 + m2y[idx]) * ti - tn[idx]
-        gx, gy = ax[idx] / dx, ay[idx] / dy
-        f = gx * gx + gy * gy - 1.0
-        df = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
+        di = delta[idx]
+        ti = tn[idx] + di
+        dx = di + m2x[idx] * ti
+        dy = di + m2y[idx] * ti
+        # non-finite values (d = 0 at the left end) are caught by the bracket below
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            gx, gy = ax[idx] / dx, ay[idx] / dy
+            f = gx * gx + gy * gy - 1.0
+            df = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
+            new = di - f / df
         # keep the bracket [lo, hi] around the root
-        lo[idx] = np.where(f > 0, ti, lo[idx])
-        hi[idx] = np.where(f <= 0, ti, hi[idx])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tn_new = ti - f / df
-        # f == 0 gives tn_new == ti, which is then an end of the bracket: keep it
-        outside = ~np.isfinite(tn_new) | (tn_new < lo[idx]) | (tn_new > hi[idx])
-        tn_new = np.where(outside, 0.5 * (lo[idx] + hi[idx]), tn_new)
-        done = (np.abs(tn_new - ti) <= 1e-15 * ti) | (np.abs(f) <= 1e-15) | (
+        lo[idx] = np.where(f > 0, di, lo[idx])
+        hi[idx] = np.where(f <= 0, di, hi[idx])
+        # f == 0 gives new == di, which is then an end of the bracket: keep it
+        outside = ~np.isfinite(new) | (new < lo[idx]) | (new > hi[idx])
+        new = np.where(outside, 0.5 * (lo[idx] + hi[idx]), new)
+        done = (np.abs(new - di) <= 1e-15 * di) | (np.abs(f) <= 1e-15) | (
             hi[idx] - lo[idx] <= 1e-15 * hi[idx]
         )
-        t[idx] = tn_new
+        delta[idx] = new
         active[idx[done]] = False
-    return t
+    return tn + delta, delta
 
 
 def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
@@ -182,7 +196,7 @@ def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
     """
     a, mx, my = _prepare("tau", tau, mu_x, mu_y)
     r = np.zeros_like(a)
-    scale = np.linalg.norm(a, axis=1)
+    scale = _row_norms(a)
     nz = scale > 0
     s = np.where(nz, scale, 1.0)
     tn, tx, ty = a[:, 0] / s, a[:, 1] / s, a[:, 2] / s
@@ -198,12 +212,12 @@ def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
     r[axis, 0] = a[axis, 0]
     if np.any(boundary):
         b = boundary
-        t = _boundary_multiplier(tn[b], tx[b], ty[b], mx[b], my[b])
-        dx = (1.0 + mx[b] ** 2) * t - tn[b]
-        dy = (1.0 + my[b] ** 2) * t - tn[b]
+        t, delta = _boundary_offset(tn[b], tx[b], ty[b], mx[b], my[b])
         r[b, 0] = t * s[b]
-        r[b, 1] = tx[b] * mx[b] ** 2 * t / dx * s[b]
-        r[b, 2] = ty[b] * my[b] ** 2 * t / dy * s[b]
+        for k, m in ((1, mx[b]), (2, my[b])):
+            d = delta + m * m * t
+            # d == 0 only if delta and mu^2 t both underflow: |r_tk| is below rounding
+            r[b, k] = np.where(d > 0, a[b, k] * (m * m * t / np.where(d > 0, d, 1.0)), 0.0)
     return r
 
 

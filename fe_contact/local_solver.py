@@ -39,6 +39,7 @@ _ARMIJO_SIGMA = 1e-4
 _MIN_STEP = 2.0**-30
 _NONMONOTONE_MEMORY = 5
 _GROWTH = 2.0  # residual growth that halves the Uzawa step
+_BLOWUP = 1e6  # |r| beyond this many force scales is divergence
 _STALL_CHECKS = 5  # checks (10 iterations each) ...
 _STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
 
@@ -203,6 +204,8 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     check_every = 10
     best_r, best_res = r, np.inf
     segment: list[float] = []  # residuals since the last restart
+    # force scale of the problem: a solution is far below _BLOWUP times this
+    r_ref = max(np.linalg.norm(r), np.linalg.norm(rho * q), 1e-300)
     it = 0
     while it < max_iter:
         u = (W @ r.ravel()).reshape(n, 3) + q
@@ -211,11 +214,13 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
             history.append(residual)
             if residual <= tol:
                 break
-            if residual < best_res:
+            if residual < best_res and np.linalg.norm(r) <= _BLOWUP * r_ref:
                 best_r, best_res = r, residual
             segment.append(residual)
             stalled = len(segment) > _STALL_CHECKS and residual > _STALL_RATIO * segment[-_STALL_CHECKS - 1]
-            if not np.isfinite(residual) or residual > _GROWTH * best_res or stalled:
+            # the normalised residual shrinks as |r| blows up, so size guards it too
+            blown_up = np.linalg.norm(r) > _BLOWUP * r_ref
+            if not np.isfinite(residual) or residual > _GROWTH * best_res or stalled or blown_up:
                 omega *= 0.5
                 r = best_r
                 u = (W @ r.ravel()).reshape(n, 3) + q
