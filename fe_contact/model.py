@@ -98,7 +98,7 @@ class SolverOptions:
     newton_tol: float = 1e-10
     newton_max_iter: int = 30
     reuse_tangent: bool = True
-    refresh_ratio: float = 0.5
+    refresh_ratio: float = 0.2
 
     def __post_init__(self):
         if self.local_method not in LOCAL_METHODS:

@@ -214,7 +214,9 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
                 f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})"
             )
             break
-        if not need_tangent and rel_res > opts.refresh_ratio * prev_res:
+        # (the first correction of a step also settles the contact statuses, so
+        # its contraction says little about the tangent)
+        if not need_tangent and it >= 2 and rel_res > opts.refresh_ratio * prev_res:
             # the reused tangent contracts too slowly here: refresh it
             t_phase = time.perf_counter()
             _, K, _ = internal_force_and_tangent(model.geometry, mesh.elements, U, model.material, model.pattern)
