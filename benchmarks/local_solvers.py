@@ -1,5 +1,5 @@
 """Iterations, time and residual of every local contact solver (``solve_local``) on
-the three FCLIB problems of ``../shared/fclib``, a random 441-contact anisotropic
+the three FCLIB problems of ``tests/data/fclib``, a random 441-contact anisotropic
 problem and a real FE flexibility problem: the first local problem of load step 2
 of the paper's case 3 (sect. 9), captured from ``fe_contact.step``.
 
@@ -24,7 +24,7 @@ from fe_contact.local_solver import METHODS, solve_local
 from pushplan.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FCLIB = ROOT.parent / "shared" / "fclib"
+FCLIB = ROOT / "tests" / "data" / "fclib"  # copy of ../shared/fclib
 FCLIB_FILES = {
     "fclib boxes": "local_problem_test.hdf5",
     "fclib capsules": "Capsules-i125-1213.hdf5",

@@ -10,7 +10,7 @@ import scipy.sparse as sp
 
 from fe_contact.fclib import LocalProblem, read_local_problem, read_sparse_matrix, write_local_problem
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "fclib"
+DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 LOCAL_FILES = {
     "boxes": ("local_problem_test.hdf5", 48),
     "capsules": ("Capsules-i125-1213.hdf5", 286),

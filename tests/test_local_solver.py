@@ -36,7 +36,7 @@ from fe_contact.fclib import read_local_problem
 from fe_contact.friction import project_elliptic_cone
 from fe_contact.local_solver import METHODS, solve_local
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "fclib"
+DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 FILES = {
     "boxes": "local_problem_test.hdf5",
     "capsules": "Capsules-i125-1213.hdf5",
