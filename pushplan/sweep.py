@@ -6,7 +6,7 @@ A sweep file (TOML) reads::
     name = "sweep_twist"                  # optional, defaults to the file stem
     description = "..."                   # optional
     base = "paper_case3.toml"             # base scenario, relative to this file
-    run = "simulate"                      # case runner, a key of CASE_RUNNERS
+    run = "simulate"                      # case runner: "simulate" or "plan" (the base has a [plan] table)
     executor = "process"                  # "process" (local pool) or "dask"
     workers = 2                           # pool size / LocalCluster workers (default: CPU count)
     [set]                                 # overrides applied to every case
@@ -74,7 +74,7 @@ from .io import atomic_write_bytes, atomic_write_json, prepare_output_dir
 from .scenario import ScenarioError, parse_scenario, read_toml
 
 EXECUTORS = ("process", "dask")
-CASE_RUNNERS = {"simulate": "pushplan.sweep:simulate_case"}
+CASE_RUNNERS = {"simulate": "pushplan.sweep:simulate_case", "plan": "pushplan.sweep:plan_case"}
 """Runner name -> ``"module:function"`` with ``function(scenario, out_dir)`` writing a
 ``summary.json`` in the :mod:`pushplan.simulate` format (``status``, ``failure``,
 ``steps``) into the existing folder ``out_dir``."""
@@ -92,6 +92,7 @@ RESULT_COLUMNS = (
     "steps_done", "twist_deg", "lower_yaw_deg", "direction_deviation_deg", "steady_twist_deg",
     "steady_twist_elliptic_deg", "step_deviation_deg", "lag", "normal_force", "max_slip", "dissipation",
     "min_step_dissipation", "max_equilibrium_error", "newton_iterations", "elapsed_s",
+    "plan_final_error", "naive_final_error",
 )
 """Per-case numbers from ``summary.json`` (empty unless the case completed):
 
@@ -117,6 +118,9 @@ RESULT_COLUMNS = (
     Sum and minimum over the steps, J.
 ``max_equilibrium_error``, ``newton_iterations``
     Maximum and sum over the steps.
+``plan_final_error``, ``naive_final_error``
+    ``run = "plan"`` only: FE-verified final position error of the plan and of the
+    naive straight push, m.
 """
 
 _PATH = re.compile(r"^(?P<table>[A-Za-z_]\w*)(?:\[(?P<index>\d+)\])?\.(?P<key>[A-Za-z_]\w*)$")
@@ -403,6 +407,34 @@ def simulate_case(scenario, out_dir: Path) -> None:
     simulate(scenario, out_dir, recording=False)
 
 
+def plan_case(scenario, out_dir: Path) -> None:
+    """The ``plan`` runner: :func:`pushplan.planner.plan` for the case's ``[plan]`` table.
+
+    Writes ``plan.json`` and a ``summary.json`` of the FE-verified rollout (press and
+    planned commands) in the simulate format, so the table has the same columns plus
+    the plan's final errors.
+    """
+    from .io import atomic_write_json
+    from .planner import parse_plan, plan, plan_commands_json, plan_document
+    from .simulate import step_summary
+
+    result = plan(scenario, parse_plan(scenario))
+    doc = plan_document(result)
+    atomic_write_json(out_dir / "plan.json", doc)
+    reports = (*result.press_reports, *result.verified.reports)
+    resolved = scenario.to_dict()
+    resolved["load"] = plan_commands_json(result)
+    atomic_write_json(out_dir / "summary.json", {
+        "scenario": resolved,
+        "elapsed_s": result.timings["total"],
+        "status": "completed" if result.status != "not_converged" else "failed",
+        "failure": None if result.status != "not_converged" else {"status": result.status, "message": result.message},
+        "plan": {"status": result.status, "final_error": doc["final_error"],
+                 "naive_final_error": doc["naive"]["final_error"]},
+        "steps": [step_summary(r) for r in reports],
+    })
+
+
 def _runner(run: str) -> Callable:
     module, func = CASE_RUNNERS[run].split(":")
     return getattr(importlib.import_module(module), func)
@@ -472,6 +504,9 @@ def result_columns(summary: dict | None) -> dict:
         newton_iterations=sum(s["newton_iterations"] for s in steps),
         elapsed_s=summary["elapsed_s"],
     )
+    if "plan" in summary:
+        out.update(plan_final_error=summary["plan"]["final_error"]["position"],
+                   naive_final_error=summary["plan"]["naive_final_error"]["position"])
     return out
 
 

@@ -165,3 +165,36 @@ def test_grid_expands_to_the_full_product(tmp_path):
     assert len({c.case_id for c in sweep.cases}) == 6 and len({c.key for c in sweep.cases}) == 6
     assert all(c.scenario["load"][1]["distance"] == c.params["load[1].distance"] for c in sweep.cases)
     assert not (tmp_path / "out").exists()
+
+
+PLAN_SWEEP = f"""
+name = "plan_tiny"
+base = "{SCENARIOS / 'plan_steel_case3.toml'}"
+run = "plan"
+workers = 2
+[set]
+"block.elements" = [4, 4, 2]
+"block.quadrature" = 2
+"plan.planning_elements" = [3, 3, 1]
+"plan.tolerance" = 6.0e-6
+[grid]
+"friction.mu_y" = [0.05, 0.15]
+"""
+
+
+def test_plan_sweep_tabulates_verified_plan_errors(tmp_path):
+    """``run = "plan"``: each case plans on its own friction and the table carries the
+    FE-verified final errors of the plan and of the naive push."""
+    sweep_file = tmp_path / "plan.toml"
+    sweep_file.write_text(PLAN_SWEEP)
+    out = tmp_path / "out"
+    assert main(["sweep", str(sweep_file), "--out", str(out), "--quiet"]) == 0
+    rows = read_rows(out / "results.csv")
+    assert len(rows) == 2
+    travel = math.hypot(0.9e-3, 0.9e-3)
+    for row in rows:
+        assert row["status"] == "completed", row
+        plan_error, naive_error = float(row["plan_final_error"]), float(row["naive_final_error"])
+        assert plan_error <= 6.0e-6 < naive_error, row
+        assert naive_error > 0.01 * travel  # the anisotropy makes the straight push miss
+    assert all((Path(p).parent / "plan.json").is_file() for p in (out / "cases").rglob("summary.json"))
