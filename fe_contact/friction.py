@@ -156,9 +156,15 @@ def _boundary_offset(tn, tx, ty, mx, my) -> tuple[np.ndarray, np.ndarray]:
         # non-finite values (d = 0 at the left end) are caught by the bracket below
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             gx, gy = ax[idx] / dx, ay[idx] / dy
-            f = gx * gx + gy * gy - 1.0
-            df = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
-            new = di - f / df
+            phi = gx * gx + gy * gy
+            f = phi - 1.0
+            dphi = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
+            # Newton on h = phi^(-1/2) - 1, which is exactly linear in delta for
+            # mu_x = mu_y and nearly so otherwise (phi itself has a pole at the
+            # left end of the bracket, which makes its Newton steps overshoot)
+            h = 1.0 / np.sqrt(phi) - 1.0
+            dh = -0.5 * dphi / (phi * np.sqrt(phi))
+            new = di - h / dh
         # keep the bracket [lo, hi] around the root
         lo[idx] = np.where(f > 0, di, lo[idx])
         hi[idx] = np.where(f <= 0, di, hi[idx])

@@ -31,6 +31,7 @@ from .model import Command, IterLog, Model, NodeStatus, State, Status, StepRepor
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
 _SOLVE_THREADS = 2
+_THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
 SEPARATION_FORCE = 1e-9
 """Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
 SLIP_DISPLACEMENT = 1e-9
@@ -79,15 +80,16 @@ class _Tangent:
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
         self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
         self.n_free = free.size
-        columns = np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS)
-
         def contact_block(cols):
             E = np.zeros((self.n_free, cols.size))
             E[self.contact_index[cols], np.arange(cols.size)] = 1.0
             return self.lu.solve(E)[self.contact_index]
 
-        with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
-            G = np.hstack(list(pool.map(contact_block, columns)))
+        if 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
+            G = contact_block(np.arange(3 * n_lower))
+        else:
+            with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
+                G = np.hstack(list(pool.map(contact_block, np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS))))
         G = G.reshape(n_lower, 3, n_lower, 3)
         G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
         T = model.frame
