@@ -1175,7 +1175,7 @@ def register(subparsers) -> None:
             q.add_argument("--control-period", type=float, help="s of MuJoCo time per command")
         if fe:
             q.add_argument("--elements", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="FE mesh override")
-            q.add_argument("--quadrature", type=int, choices=(1, 2, 3), help="Gauss points per direction override")
+            q.add_argument("--quadrature", type=int, choices=(2, 3), help="Gauss points per direction override")
 
     q = sub.add_parser("import", help="show what the MJCF scene gives the FE model")
     common(q, commands=False, fe=False)
