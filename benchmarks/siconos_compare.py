@@ -18,7 +18,6 @@ out/fclib/*.hdf5``.  Prints a table and writes
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile

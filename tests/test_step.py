@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from fe_contact import Command, Friction, Material, Model, NodeStatus, SolverOptions, State, block_mesh, initial_state, run, step
+from fe_contact import Command, Friction, Material, Model, NodeStatus, SolverOptions, block_mesh, initial_state, run, step
 
 EXACT_FORCE_RTOL = 1e-6  # issue: 827442 N to 1e-6 relative
 EQUILIBRIUM_TOL = 1e-8  # contact + upper-face forces, relative
