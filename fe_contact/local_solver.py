@@ -322,7 +322,6 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
     # same fixed point.  An SPD W needs none.
     eta = 0.0 if assume_spd or _well_conditioned(Ws) else 1e-2 * w_ref
-    eye = np.eye(3 * n)
 
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(D > 0, r / np.where(D > 0, D, 1.0), 0.0)
@@ -339,7 +338,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
     history = [residual]
     it = 0
     while residual > tol and it < max_iter:
-        Wp = Ws + eta * eye
+        Wp = Ws + eta * np.eye(3 * n) if eta > 0 else Ws
         qp = qs - eta * s
         F, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)
         psi = 0.5 * float(F.ravel() @ F.ravel())

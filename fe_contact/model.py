@@ -77,7 +77,9 @@ class SolverOptions:
         Uzawa sweeps or 100 Newton steps).
     newton_tol : float
         Tolerance on the out-of-balance force of the free dofs, relative to the
-        largest of the contact and upper-face reaction norms.
+        largest of the contact and upper-face reaction norms and the step's
+        predictor out-of-balance force (which keeps it meaningful when the
+        block is lifted off and all forces vanish).
     newton_max_iter : int
         Iteration limit of the equilibrium loop.
     reuse_tangent : bool

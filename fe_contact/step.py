@@ -93,8 +93,12 @@ class _Tangent:
         G = G.reshape(n_lower, 3, n_lower, 3)
         G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
         T = model.frame
-        self.W = np.einsum("ij,ajbk,lk->aibl", T, G, T).reshape(3 * n_lower, 3 * n_lower)
-        self.w_mean = float(np.mean(np.diag(self.W)))
+        W = np.einsum("ij,ajbk,lk->aibl", T, G, T).reshape(3 * n_lower, 3 * n_lower)
+        # Divided by its mean diagonal compliance, u = W r + q has force units, so
+        # the natural-map residual (r - proj(r - modified(u))) is homogeneous; the
+        # contact law is invariant under this scaling of u.  Kept scaled, once.
+        self.w_mean = float(np.mean(np.diag(W)))
+        self.W_scaled = W / self.w_mean
 
     def solve(self, rhs_free: np.ndarray) -> np.ndarray:
         return self.lu.solve(rhs_free)
@@ -163,7 +167,6 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
     prev_res = math.inf
     n_tangents = 0
     timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
-    local = None
     rel_res = math.inf
     min_det = math.nan
     f_int = None
@@ -199,7 +202,6 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
         f_contact = np.zeros(mesh.n_dofs)
         f_contact[model.lower_dofs.ravel()] = contact_world.ravel()
         R = (f_int - f_contact)[free]
-        upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0)
         # the out-of-balance force of the predictor (iteration 0) keeps the scale
         # meaningful when the block is lifted off and all forces vanish
         scale = max(np.linalg.norm(f_int[model.upper_dofs]), np.linalg.norm(contact_world))
@@ -233,14 +235,14 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
                 status, message = Status.TANGENT_SINGULAR, f"tangent stiffness singular at Newton iteration {it}: {exc}"
                 break
             n_tangents += 1
-            w_diag = np.diag(tangent.W)
-            if not (np.all(np.isfinite(tangent.W)) and np.all(w_diag > 0)):
+            w_diag = np.diag(tangent.W_scaled)
+            if not (tangent.w_mean > 0 and np.all(np.isfinite(tangent.W_scaled)) and np.all(w_diag > 0)):
                 # a flexibility matrix must be positive definite; rounding has won
                 # (e.g. nearly incompressible material, nu -> 0.5)
                 status, message = (
                     Status.TANGENT_SINGULAR,
                     f"flexibility matrix not positive definite at Newton iteration {it} "
-                    f"(min diagonal {w_diag.min():.3g}): tangent stiffness too ill-conditioned",
+                    f"(min scaled diagonal {w_diag.min():.3g}): tangent stiffness too ill-conditioned",
                 )
                 break
         timings["tangent"] += time.perf_counter() - t_phase
@@ -249,13 +251,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
         dw0 = dU_free[tangent.contact_index].reshape(-1, 3)
         w = U[lower] - U_start_lower
         w[:, 2] = mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
-        q = (w + dw0) @ T.T - (tangent.W @ r.ravel()).reshape(-1, 3)
+        W_scaled = tangent.W_scaled
+        q_scaled = (w + dw0) @ T.T / tangent.w_mean - (W_scaled @ r.ravel()).reshape(-1, 3)
         timings["solve"] += time.perf_counter() - t_phase
         t_phase = time.perf_counter()
-        # dividing u = W r + q by the mean compliance gives u force units, so the
-        # natural-map residual (r - proj(r - modified(u))) is homogeneous; the
-        # contact law is invariant under this scaling of u.
-        W_scaled, q_scaled = tangent.W / tangent.w_mean, q / tangent.w_mean
         local = solve_local(
             W_scaled, q_scaled, mu_x, mu_y,
             method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,

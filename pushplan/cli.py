@@ -51,6 +51,12 @@ def cmd_simulate(args) -> int:
                       recording=not args.no_recording, export_fclib=fclib_dir)
     _print_steps(result.summary)
     print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({result.summary['elapsed_s']:.2f} s)")
+    return simulation_exit_status(result)
+
+
+def simulation_exit_status(result) -> int:
+    """0 for a completed :class:`~pushplan.simulate.SimulationResult`; otherwise print
+    the failure on stderr and return :data:`EXIT_SOLVER_FAILURE`."""
     if not result.completed:
         print(f"pushplan: solver failure: {result.summary['failure']['message']}", file=sys.stderr)
         return EXIT_SOLVER_FAILURE

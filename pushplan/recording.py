@@ -487,7 +487,7 @@ def lower_face_deviation(reference: np.ndarray, other: np.ndarray) -> np.ndarray
 
 
 def cmd_replay(args) -> int:
-    from .cli import EXIT_SOLVER_FAILURE, CliError
+    from .cli import CliError, simulation_exit_status
     from .io import atomic_write_json, prepare_output_dir
     from .plan_io import load_commands
     from .scenario import load_scenario
@@ -534,10 +534,7 @@ def cmd_replay(args) -> int:
     else:
         print("no original trajectory to compare with (no recording.rrd next to the plan)")
     atomic_write_json(out / "replay.json", report)
-    if not result.completed:
-        print(f"pushplan: solver failure: {result.summary['failure']['message']}", file=sys.stderr)
-        return EXIT_SOLVER_FAILURE
-    return 0
+    return simulation_exit_status(result)
 
 
 def cmd_view(args) -> int:
