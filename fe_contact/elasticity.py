@@ -18,6 +18,7 @@ Gauss point, ``a``/``b`` local node, ``i``/``k`` spatial component, ``I``/``J``/
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from numbers import Real
 
 import numpy as np
@@ -115,6 +116,17 @@ class ElementGeometry:
     def n_elements(self) -> int:
         return int(self.grad.shape[0])
 
+    # Gauss-point sums as batched (8 x 3 n_qp) matrix products: ``grad`` laid out
+    # per element as rows ``a`` and columns ``(q, J)``, plain and times ``dV``.
+    @cached_property
+    def grad_rows(self) -> np.ndarray:
+        return np.ascontiguousarray(self.grad.transpose(0, 2, 1, 3).reshape(self.n_elements, 8, -1))
+
+    @cached_property
+    def weighted_grad_rows(self) -> np.ndarray:
+        weighted = self.grad * self.dvol[:, :, None, None]
+        return np.ascontiguousarray(weighted.transpose(0, 2, 1, 3).reshape(self.n_elements, 8, -1))
+
     @property
     def n_qp(self) -> int:
         return int(self.grad.shape[1])
@@ -205,7 +217,10 @@ def deformation_gradient(geometry: ElementGeometry, elements, U) -> np.ndarray:
 
 
 def _displacement_gradient(geometry: ElementGeometry, elements, U) -> np.ndarray:
-    return np.einsum("eai,eqaJ->eqiJ", U[elements], geometry.grad)
+    n_elems, n_qp = geometry.dvol.shape
+    # H[e, q, i, J] = sum_a U[e_a, i] dN_a/dX_J, one (3 x 8)(8 x 3 n_qp) product per element
+    H = np.matmul(U[elements].transpose(0, 2, 1), geometry.grad_rows)
+    return H.reshape(n_elems, 3, n_qp, 3).transpose(0, 2, 1, 3)
 
 
 def green_lagrange(F) -> np.ndarray:
@@ -251,10 +266,17 @@ def second_piola_kirchhoff(E, material: Material) -> np.ndarray:
 
 
 def _stress_state(geometry, elements, U, material):
+    """``F`` and ``S`` at every Gauss point (the hot path of every Newton iteration)."""
     H = _displacement_gradient(geometry, elements, U)
-    F = _I3 + H
-    S = second_piola_kirchhoff(green_lagrange(F), material)
-    return F, S
+    Ht = H.swapaxes(-1, -2)
+    E = H + Ht
+    E += np.matmul(Ht, H)
+    E *= 0.5  # green_lagrange(I + H), without forming I + H first
+    trace = E[..., 0, 0] + E[..., 1, 1] + E[..., 2, 2]
+    S = (2.0 * material.lame_mu) * E
+    for k in range(3):
+        S[..., k, k] += material.lame_lambda * trace
+    return _I3 + H, S
 
 
 def stored_energy(geometry: ElementGeometry, elements, U, material: Material) -> float:
@@ -315,8 +337,10 @@ def internal_force(
 
 
 def _element_forces(geometry: ElementGeometry, F, S) -> np.ndarray:
-    P = np.einsum("eqiI,eqIJ->eqiJ", F, S)
-    return np.einsum("eqiJ,eqaJ,eq->eai", P, geometry.grad, geometry.dvol)
+    n_elems, n_qp = geometry.dvol.shape
+    P = np.matmul(F, S)  # first Piola-Kirchhoff stress
+    # f[e, a, i] = sum_(q, J) dV dN_a/dX_J P_iJ: one (8 x 3 n_qp)(3 n_qp x 3) product per element
+    return np.matmul(geometry.weighted_grad_rows, P.swapaxes(-1, -2).reshape(n_elems, 3 * n_qp, 3))
 
 
 def _element_tangents(geometry: ElementGeometry, F, S, material: Material) -> np.ndarray:

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 
 from .friction import _as_coefficients, modified_velocity, project_elliptic_cone
 
-__all__ = ["LocalSolution", "solve_local", "natural_map_residual", "METHODS"]
+__all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
 
 METHODS = ("uzawa", "newton")
 
@@ -42,6 +42,7 @@ _GROWTH = 2.0  # residual growth that halves the Uzawa step
 _BLOWUP = 1e6  # |r| beyond this many force scales is divergence
 _STALL_CHECKS = 5  # checks (10 iterations each) ...
 _STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
+_CHORD_CONTRACTION = 0.5  # |F| reduction that accepts a step with an old Newton matrix
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,49 @@ class LocalSolution:
     converged: bool
     residual_history: tuple
     method: str
+
+
+class NewtonWorkspace:
+    """What the ``"newton"`` method keeps between calls on one flexibility matrix.
+
+    A load step solves many local problems with the same ``W`` and a slowly
+    changing ``q``.  The workspace keeps the scaled ``W`` and the LU factors of
+    the last Newton matrix, which usually still contract in the next call
+    (chord steps: a triangular solve instead of a dense LU).  Pass it with the
+    same ``W`` object, unmodified; another ``W`` or other coefficients reset it.
+
+    Attributes
+    ----------
+    factorisations, chord_steps : int
+        Dense LU factorisations done and chord steps accepted so far.
+    """
+
+    def __init__(self) -> None:
+        self._W = None
+        self._d = None
+        self._Ws = None
+        self.lu = None
+        self.factorisations = 0
+        self.chord_steps = 0
+
+    def copy(self) -> "NewtonWorkspace":
+        """An independent workspace starting from this one's state (arrays shared, never modified)."""
+        other = NewtonWorkspace()
+        other.__dict__.update(self.__dict__)
+        return other
+
+    def _scaled(self, W, d):
+        # "same W" = same buffer viewed the same way (np.asarray may rewrap it)
+        same = self._W is not None and (
+            W.__array_interface__["data"][0] == self._W.__array_interface__["data"][0]
+            and W.shape == self._W.shape
+            and W.strides == self._W.strides
+        )
+        if not same or not np.array_equal(self._d, d):
+            self._W, self._d = W, d.copy()
+            self._Ws = W * d[:, None] * d[None, :]
+            self.lu = None
+        return self._Ws
 
 
 def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
@@ -136,6 +180,7 @@ def solve_local(
     max_iter: int | None = None,
     r0=None,
     assume_spd: bool = False,
+    workspace: NewtonWorkspace | None = None,
 ) -> LocalSolution:
     """Solve the condensed frictional contact problem ``FC(W, q, M)``.
 
@@ -158,6 +203,9 @@ def solve_local(
         The caller knows ``W`` is symmetric positive definite (an FE
         flexibility matrix): the Newton method skips its conditioning test and
         proximal regularisation.
+    workspace : NewtonWorkspace, optional
+        Newton only: reuse the factorised Newton matrix of earlier calls with
+        the same ``W`` object (chord steps).
 
     Returns
     -------
@@ -176,6 +224,8 @@ def solve_local(
         raise ValueError(f"tol must be > 0, got {tol}")
     if max_iter is not None and int(max_iter) < 1:
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    if workspace is not None and not isinstance(workspace, NewtonWorkspace):
+        raise ValueError(f"workspace must be a NewtonWorkspace, got {type(workspace).__name__}")
     Wd, qa, mx, my, ra = _validate(W, q, mu_x, mu_y, r0)
     if qa.shape[0] == 0:
         empty = np.zeros((0, 3))
@@ -183,7 +233,7 @@ def solve_local(
     ra = project_elliptic_cone(ra, mx, my)
     if method == "uzawa":
         return _uzawa(Wd, qa, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter))
-    return _newton(Wd, qa, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd)
+    return _newton(Wd, qa, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace)
 
 
 def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
@@ -236,8 +286,8 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), "uzawa")
 
 
-def _alart_curnier(s, Ws, qs, mu, rho, fixed):
-    """AC function ``F(s)`` and one element of its generalised Jacobian.
+def _alart_curnier(s, Ws, qs, mu, rho, fixed, jacobian=True):
+    """AC function ``F(s)`` and (if ``jacobian``) one element of its generalised Jacobian.
 
     Isotropic cone with coefficients ``mu`` (1 or 0) on scaled variables.
     ``fixed`` marks scaled components pinned to 0 (axes with zero friction).
@@ -255,6 +305,8 @@ def _alart_curnier(s, Ws, qs, mu, rho, fixed):
     F = np.empty_like(s)
     F[:, 0] = np.where(active, rho * u[:, 0], s[:, 0])
     F[:, 1:] = np.where(stick[:, None], rho[:, None] * u[:, 1:], s[:, 1:] - R[:, None] * zhat)
+    if not jacobian:
+        return np.where(fixed, s, F)
 
     # The Jacobian is blockdiag(P) + Q W with 3x3 blocks P, Q per contact:
     #   normal row, active:   rho * W_n            (P = 0,   Q = rho e_n^T)
@@ -304,7 +356,15 @@ def _well_conditioned(A) -> bool:
     return bool(np.min(np.diag(L)) ** 2 > 1e-8 * np.max(np.diag(A)))
 
 
-def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
+def _factorise(J):
+    """LU factors of the Newton matrix, or None if it is exactly singular."""
+    lu, piv = sla.lu_factor(J, overwrite_a=True, check_finite=False)
+    if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
+        return None
+    return lu, piv
+
+
+def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
     n = q.shape[0]
     frictionless = (mx == 0) & (my == 0)
     # D = diag(1, mu_x, mu_y); frictionless contacts keep D = I with mu = 0
@@ -312,7 +372,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
     mu = np.where(frictionless, 0.0, 1.0)
     fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
     d = D.ravel()
-    Ws = W * d[:, None] * d[None, :]
+    Ws = workspace._scaled(W, d) if workspace is not None else W * d[:, None] * d[None, :]
     qs = q * D
     diag = np.diag(Ws).reshape(n, 3)
     w_ref = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
@@ -322,6 +382,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
     # same fixed point.  An SPD W needs none.
     eta = 0.0 if assume_spd or _well_conditioned(Ws) else 1e-2 * w_ref
+    # the factorised Newton matrix outlives the call only for an unregularised W
+    keep = workspace if workspace is not None and eta == 0.0 else None
 
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(D > 0, r / np.where(D > 0, D, 1.0), 0.0)
@@ -340,28 +402,49 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False) -> LocalSolution:
     while residual > tol and it < max_iter:
         Wp = Ws + eta * np.eye(3 * n) if eta > 0 else Ws
         qp = qs - eta * s
-        F, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)
+        F = _alart_curnier(s, Wp, qp, mu, rho, fixed, jacobian=False)
         psi = 0.5 * float(F.ravel() @ F.ravel())
+        # LU factors of a Newton matrix of this Wp, not necessarily taken at s
+        lu = keep.lu if keep is not None else None
         merits: list[float] = []
         for _ in range(30 if eta > 0 else max_iter):
             if it >= max_iter:
                 break
-            try:
-                step = sla.solve(J, -F.ravel(), check_finite=False, assume_a="gen")
-            except sla.LinAlgError:
-                step = sla.lstsq(J, -F.ravel(), check_finite=False)[0]
-            step = step.reshape(n, 3)
             merits.append(psi)
-            ref = max(merits[-_NONMONOTONE_MEMORY:])
-            alpha = 1.0
-            while True:
-                s_try = s + alpha * step
-                F_try, J_try = _alart_curnier(s_try, Wp, qp, mu, rho, fixed)
+            accepted = False
+            if lu is not None:
+                # Chord step: the generalised Jacobian is piecewise constant in
+                # the stick / slip / open pattern and varies slowly within it, so
+                # an older factorisation usually still contracts; a triangular
+                # solve replaces the dense LU.  Kept only if |F| at least halves.
+                s_try = s + sla.lu_solve(lu, -F.ravel(), check_finite=False).reshape(n, 3)
+                F_try = _alart_curnier(s_try, Wp, qp, mu, rho, fixed, jacobian=False)
                 psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
-                if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
-                    break
-                alpha *= 0.5
-            s, F, J, psi = s_try, F_try, J_try, psi_try
+                accepted = bool(psi_try <= _CHORD_CONTRACTION**2 * psi)
+                if accepted and keep is not None:
+                    keep.chord_steps += 1
+            if not accepted:
+                _, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)
+                lu = _factorise(J)
+                if keep is not None:
+                    keep.lu = lu
+                    keep.factorisations += 1
+                if lu is not None:
+                    step = sla.lu_solve(lu, -F.ravel(), check_finite=False)
+                else:
+                    _, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)  # lu_factor overwrote J
+                    step = sla.lstsq(J, -F.ravel(), check_finite=False)[0]
+                step = step.reshape(n, 3)
+                ref = max(merits[-_NONMONOTONE_MEMORY:])
+                alpha = 1.0
+                while True:
+                    s_try = s + alpha * step
+                    F_try = _alart_curnier(s_try, Wp, qp, mu, rho, fixed, jacobian=False)
+                    psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
+                    if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
+                        break
+                    alpha *= 0.5
+            s, F, psi = s_try, F_try, psi_try
             it += 1
             residual = true_residual(s)
             history.append(residual)

@@ -18,6 +18,7 @@ displacements and the only Newton nonlinearity is geometric.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -26,7 +27,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from .elasticity import internal_force, internal_force_and_tangent
-from .local_solver import solve_local
+from .local_solver import NewtonWorkspace, solve_local
 from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
@@ -99,6 +100,14 @@ class _Tangent:
         # contact law is invariant under this scaling of u.  Kept scaled, once.
         self.w_mean = float(np.mean(np.diag(W)))
         self.W_scaled = W / self.w_mean
+        # the local Newton matrix factorised in one iteration serves the next ones;
+        # a step works on a copy, so that stepping twice from one state agrees
+        self.workspace = NewtonWorkspace()
+
+    def with_workspace(self, workspace: NewtonWorkspace) -> "_Tangent":
+        other = copy.copy(self)
+        other.workspace = workspace
+        return other
 
     def solve(self, rhs_free: np.ndarray) -> np.ndarray:
         return self.lu.solve(rhs_free)
@@ -164,6 +173,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
     status, message = Status.NEWTON_NOT_CONVERGED, ""
     logs: list[IterLog] = []
     tangent = state.tangent if opts.reuse_tangent else None
+    workspace = tangent.workspace.copy() if tangent is not None else None
     prev_res = math.inf
     n_tangents = 0
     timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
@@ -235,6 +245,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
                 status, message = Status.TANGENT_SINGULAR, f"tangent stiffness singular at Newton iteration {it}: {exc}"
                 break
             n_tangents += 1
+            workspace = tangent.workspace.copy()
             w_diag = np.diag(tangent.W_scaled)
             if not (tangent.w_mean > 0 and np.all(np.isfinite(tangent.W_scaled)) and np.all(w_diag > 0)):
                 # a flexibility matrix must be positive definite; rounding has won
@@ -259,6 +270,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
             W_scaled, q_scaled, mu_x, mu_y,
             method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
             assume_spd=True,  # K_ff is SPD with the upper face prescribed
+            workspace=workspace,
         )
         timings["local"] += time.perf_counter() - t_phase
         if local_problem_hook is not None:
@@ -343,7 +355,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
         upper_rotation=rotation,
         slip_path=slip_path,
         step_index=state.step_index + 1,
-        tangent=tangent if opts.reuse_tangent else None,
+        tangent=tangent.with_workspace(workspace) if opts.reuse_tangent and tangent is not None else None,
     )
     return new_state, report
 

@@ -34,7 +34,7 @@ from scipy.optimize import nnls
 
 from fe_contact.fclib import read_local_problem
 from fe_contact.friction import project_elliptic_cone
-from fe_contact.local_solver import METHODS, solve_local
+from fe_contact.local_solver import METHODS, NewtonWorkspace, solve_local
 
 DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 FILES = {
@@ -317,6 +317,38 @@ def test_warm_start(method):
     assert np.linalg.norm(other.r - cold.r) <= AGREE_RTOL * np.linalg.norm(cold.r)
 
 
+def test_workspace_chord_steps_reach_the_same_solutions():
+    """A sequence of nearby problems on one W (what a load step produces): with the
+    workspace (chord steps on an older factorisation) the solutions equal the
+    plain Newton ones, and fewer LU factorisations are done than Newton steps."""
+    W, q, mx, my = random_problem(6, nc=30, c=1.0)  # c = 1: FE-like, SPD
+    drift = np.random.default_rng(7).standard_normal(q.shape)
+    workspace = NewtonWorkspace()
+    plain_r = fast_r = None
+    steps = 0
+    for k in range(6):
+        qk = q + 1e-2 * 0.3**k * drift
+        plain = solve_local(W, qk, mx, my, method="newton", tol=SOLVE_TOL, r0=plain_r, assume_spd=True)
+        fast = solve_local(W, qk, mx, my, method="newton", tol=SOLVE_TOL, r0=fast_r,
+                           assume_spd=True, workspace=workspace)
+        assert plain.converged and fast.converged
+        check_honest(fast, W, qk, SOLVE_TOL, anisotropic_residual(fast.r, fast.u, qk, mx, my))
+        assert np.linalg.norm(fast.r - plain.r) <= AGREE_RTOL * np.linalg.norm(plain.r)
+        plain_r, fast_r = plain.r, fast.r
+        steps += fast.iterations
+    assert workspace.chord_steps > 0
+    assert workspace.factorisations + workspace.chord_steps == steps
+    assert workspace.factorisations < steps
+    # another W resets the kept factorisation instead of misusing it
+    W2 = W + np.eye(W.shape[0])
+    fresh = solve_local(W2, q, mx, my, method="newton", tol=SOLVE_TOL, assume_spd=True)
+    factorised = workspace.factorisations
+    reused = solve_local(W2, q, mx, my, method="newton", tol=SOLVE_TOL, assume_spd=True,
+                         workspace=workspace)
+    np.testing.assert_allclose(reused.r, fresh.r, rtol=0, atol=AGREE_RTOL * np.abs(fresh.r).max())
+    assert workspace.factorisations > factorised
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_iteration_limit_is_reported(method):
     W, q, mx, my = random_problem(5)
@@ -333,6 +365,7 @@ def test_empty_problem():
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(W=np.eye(6)[:, :5]), "W must be square"),
+    (dict(workspace="lu"), "workspace must be a NewtonWorkspace"),
     (dict(W=np.eye(9)), r"W has shape \(9, 9\) but q has 2 contacts"),
     (dict(q=np.ones((2, 2))), "q must have shape"),
     (dict(q=np.ones(7)), "q must have shape"),
