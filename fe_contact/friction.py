@@ -117,6 +117,11 @@ def in_polar_cone(v, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
 def modified_velocity(u, mu_x, mu_y) -> np.ndarray:
     """De Saxcé modified velocity ``(u_n + ||M u_t||, u_t)``, shape (n, 3)."""
     a, mx, my = _prepare("u", u, mu_x, mu_y)
+    return _modified(a, mx, my)
+
+
+def _modified(a, mx, my) -> np.ndarray:
+    """:func:`modified_velocity` for checked input (see :func:`_project`)."""
     out = a.copy()
     out[:, 0] += np.hypot(mx * a[:, 1], my * a[:, 2])
     return out
@@ -127,55 +132,40 @@ def _boundary_offset(tn, tx, ty, mx, my) -> tuple[np.ndarray, np.ndarray]:
 
     On the cone boundary the projection is ``r = (t, tau_tx mu_x^2 t / d_x,
     tau_ty mu_y^2 t / d_y)`` with ``d_i = (1 + mu_i^2) t - tau_n``, and ``t``
-    solves ``phi(t) = sum_i (tau_ti mu_i / d_i)^2 = 1``.  ``phi`` is convex and
-    strictly decreasing on ``(max(tau_n, 0), inf)``, exceeds 1 at the left end
-    (tau is outside both cones) and is <= 1 at
-    ``t_hi = (tau_n + ||M tau_t||) / (1 + min mu_i^2)``: a safeguarded Newton
-    iteration on that bracket has exactly one root to find.  For ``mu_x =
-    mu_y``, ``t_hi`` is the root.  The unknown is ``delta = t - tau_n``, so
-    that ``d_i = delta + mu_i^2 t`` keeps full relative precision for narrow
-    cones (``t - tau_n`` computed from ``t`` is pure rounding once ``mu < 1e-8``).
-    Inputs are normalised (``max |tau_i| = 1``).
+    solves ``sum_i (tau_ti mu_i / d_i)^2 = 1``.  The unknown is ``delta = t -
+    tau_n``, so that ``d_i = delta + mu_i^2 t`` keeps full relative precision
+    for narrow cones (``t - tau_n`` computed from ``t`` is pure rounding once
+    ``mu < 1e-8``).  With ``e_i = tau_ti mu_i / (1 + mu_i^2)`` and ``c_i =
+    mu_i^2 tau_n / (1 + mu_i^2)`` the equation reads ``phi(delta) = sum_i e_i^2
+    / (delta + c_i)^2 = 1`` (the secular equation of a point-to-ellipse
+    distance).  ``h = phi^(-1/2)`` is a weighted power mean with exponent -2 of
+    the ``delta + c_i`` > 0, hence increasing and concave in ``delta``; it is
+    <= 1 at ``lo = max_i(|e_i| - c_i)`` (one term alone reaches 1 there), so
+    Newton on ``h = 1`` from ``lo`` increases monotonically to the root, with
+    no overshoot to guard against.  Measured: at most 8 passes for
+    ``mu_x / mu_y = 6``, 13 for 1e4.  Inputs are normalised (``max |tau_i| = 1``).
     """
-    ax, ay = tx * mx, ty * my
-    sup = np.hypot(ax, ay)
     m2x, m2y = mx * mx, my * my
-    m2min = np.minimum(m2x, m2y)
-    lo = np.maximum(-tn, 0.0)
-    hi = (sup - m2min * tn) / (1.0 + m2min)
-    delta = hi.copy()
-    active = np.ones(delta.shape, dtype=bool)
-    for _ in range(_ROOT_MAX_ITER):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        di = delta[idx]
-        ti = tn[idx] + di
-        dx = di + m2x[idx] * ti
-        dy = di + m2y[idx] * ti
-        # non-finite values (d = 0 at the left end) are caught by the bracket below
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            gx, gy = ax[idx] / dx, ay[idx] / dy
-            phi = gx * gx + gy * gy
-            f = phi - 1.0
-            dphi = -2.0 * (gx * gx * (1.0 + m2x[idx]) / dx + gy * gy * (1.0 + m2y[idx]) / dy)
-            # Newton on h = phi^(-1/2) - 1, which is exactly linear in delta for
-            # mu_x = mu_y and nearly so otherwise (phi itself has a pole at the
-            # left end of the bracket, which makes its Newton steps overshoot)
-            h = 1.0 / np.sqrt(phi) - 1.0
-            dh = -0.5 * dphi / (phi * np.sqrt(phi))
-            new = di - h / dh
-        # keep the bracket [lo, hi] around the root
-        lo[idx] = np.where(f > 0, di, lo[idx])
-        hi[idx] = np.where(f <= 0, di, hi[idx])
-        # f == 0 gives new == di, which is then an end of the bracket: keep it
-        outside = ~np.isfinite(new) | (new < lo[idx]) | (new > hi[idx])
-        new = np.where(outside, 0.5 * (lo[idx] + hi[idx]), new)
-        done = (np.abs(new - di) <= 1e-15 * di) | (np.abs(f) <= 1e-15) | (
-            hi[idx] - lo[idx] <= 1e-15 * hi[idx]
-        )
-        delta[idx] = new
-        active[idx[done]] = False
+    ex, ey = tx * mx / (1.0 + m2x), ty * my / (1.0 + m2y)
+    cx, cy = m2x * tn / (1.0 + m2x), m2y * tn / (1.0 + m2y)
+    delta = np.maximum(np.maximum(-tn, 0.0), np.maximum(np.abs(ex) - cx, np.abs(ey) - cy))
+    # a zero e_i contributes nothing, whatever c_i; c_i = 1 keeps its term finite
+    cx = np.where(ex != 0.0, cx, 1.0)
+    cy = np.where(ey != 0.0, cy, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(_ROOT_MAX_ITER):
+            ix, iy = 1.0 / (delta + cx), 1.0 / (delta + cy)
+            gx2, gy2 = (ex * ix) ** 2, (ey * iy) ** 2
+            h = 1.0 / np.sqrt(gx2 + gy2)
+            # Newton step (1 - h) / h' with h' = h^3 sum_i g_i^2 / (delta + c_i)
+            step = (1.0 - h) / (h**3 * (gx2 * ix + gy2 * iy))
+            # rounding can make the last steps <= 0 or non-finite: the root is reached
+            step = np.where(step > 0.0, step, 0.0)  # (NaN > 0 is False)
+            new = delta + step
+            converged = np.all(step <= 4e-16 * new)
+            delta = new
+            if converged:
+                break
     return tn + delta, delta
 
 
@@ -201,14 +191,24 @@ def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
         Wrong shape, non-finite entries or negative coefficients.
     """
     a, mx, my = _prepare("tau", tau, mu_x, mu_y)
+    return _project(a, mx, my)
+
+
+def _project(a, mx, my) -> np.ndarray:
+    """:func:`project_elliptic_cone` for checked input: ``a`` finite, shape (n, 3);
+    ``mx``, ``my`` finite, >= 0, shape (n,).  The solvers' inner loops call this."""
     r = np.zeros_like(a)
-    scale = _row_norms(a)
+    scale = np.max(np.abs(a), axis=1)
     nz = scale > 0
     s = np.where(nz, scale, 1.0)
     tn, tx, ty = a[:, 0] / s, a[:, 1] / s, a[:, 2] / s
     sup = np.hypot(mx * tx, my * ty)  # ||M tau_t||
     polar = tn + sup <= 0.0
-    inside = in_cone(np.column_stack([tn, tx, ty]), mx, my) & ~polar
+    # ||M^-1 tau_t||; a component along an axis without friction puts tau outside
+    with np.errstate(over="ignore"):  # inf for a tiny mu is the right answer: outside
+        cx = np.where(mx > 0, tx / np.where(mx > 0, mx, 1.0), np.where(tx == 0.0, 0.0, np.inf))
+        cy = np.where(my > 0, ty / np.where(my > 0, my, 1.0), np.where(ty == 0.0, 0.0, np.inf))
+    inside = (np.hypot(cx, cy) <= tn) & ~polar
     rest = nz & ~polar & ~inside
     # tau outside both cones but with no friction-weighted tangential part: the
     # projection is onto the axis (tau_n > 0 here since tau is not polar).

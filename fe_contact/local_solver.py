@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from .friction import _as_coefficients, modified_velocity, project_elliptic_cone
+from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
 
@@ -131,7 +131,7 @@ def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(u))):
         return float("inf")
     with np.errstate(over="ignore", invalid="ignore"):
-        res = np.linalg.norm(r - project_elliptic_cone(r - modified_velocity(u, mx, my), mx, my))
+        res = np.linalg.norm(r - _project(r - _modified(u, mx, my), mx, my))
         scale = max(np.linalg.norm(q), np.linalg.norm(r), np.linalg.norm(u))
     if not np.isfinite(scale):
         return float("inf")
@@ -275,7 +275,7 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
                 r = best_r
                 u = (W @ r.ravel()).reshape(n, 3) + q
                 segment = []
-        r = project_elliptic_cone(r - omega * rho * modified_velocity(u, mx, my), mx, my)
+        r = _project(r - omega * rho * _modified(u, mx, my), mx, my)
         it += 1
     u = (W @ r.ravel()).reshape(n, 3) + q
     residual = natural_map_residual(r, u, q, mx, my)
@@ -392,7 +392,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
         # measured on the projected iterate, which is what is returned: a Newton
         # iterate can sit slightly outside the cone, and projecting it afterwards
         # could undo a convergence decided on the unprojected one
-        rr = project_elliptic_cone(s * D, mx, my)
+        rr = _project(s * D, mx, my)
         uu = (W @ rr.ravel()).reshape(n, 3) + q
         return natural_map_residual(rr, uu, q, mx, my)
 
@@ -452,7 +452,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 break
         if eta > 0:
             eta = max(0.2 * eta, 1e-10 * w_ref)
-    r_final = project_elliptic_cone(s * D, mx, my)
+    r_final = _project(s * D, mx, my)
     u_final = (W @ r_final.ravel()).reshape(n, 3) + q
     residual = natural_map_residual(r_final, u_final, q, mx, my)
     history[-1] = residual
