@@ -19,7 +19,7 @@ import numpy as np
 
 from .assembly import SparsityPattern, sparsity_pattern
 from .elasticity import ElementGeometry, Material, element_geometry
-from .mesh import BlockMesh, face_tributary_areas
+from .mesh import BlockMesh, face_tributary_areas, node_layers
 
 from .local_solver import METHODS as LOCAL_METHODS
 
@@ -161,6 +161,10 @@ class Model:
     """(n_lower,) tributary area of each contact node, m^2."""
     upper_area: np.ndarray = field(init=False, repr=False)
     """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
+    layer_dofs: tuple | None = field(init=False, repr=False)
+    """Free dofs by node layer, contact layer first (``lower_dofs`` order), up to
+    the layer under the upper face; None if the mesh is not layered
+    (:func:`fe_contact.mesh.node_layers`)."""
 
     def __post_init__(self):
         if not isinstance(self.mesh, BlockMesh):
@@ -189,6 +193,12 @@ class Model:
         set_(self, "frame", local_frame(self.friction.angle))
         set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
         set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
+        layers = node_layers(mesh)
+        if layers is None:
+            set_(self, "layer_dofs", None)
+        else:
+            interior = [(3 * np.flatnonzero(layers == k)[:, None] + np.arange(3)).ravel() for k in range(1, layers.max())]
+            set_(self, "layer_dofs", (self.lower_dofs.ravel(), *interior))
 
     @property
     def n_contacts(self) -> int:

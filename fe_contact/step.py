@@ -24,7 +24,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse.linalg as spla
+from scipy.linalg import blas, lapack
 
 from .elasticity import internal_force, internal_force_and_tangent
 from .local_solver import NewtonWorkspace, solve_local
@@ -33,6 +35,9 @@ from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
 _SOLVE_THREADS = 2
 _THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
+# Dense BLAS-3 runs this many times more flop/s than the SuperLU triangular
+# solves (measured on the paper mesh: see benchmarks/paper_case.py).
+_DENSE_RATE_RATIO = 5.0
 SEPARATION_FORCE = 1e-9
 """Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
 SLIP_DISPLACEMENT = 1e-9
@@ -65,12 +70,47 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
     return x + translation - X
 
 
+def _layered_compliance(K, layer_dofs) -> np.ndarray | None:
+    """Contact block of ``K_ff^-1`` by block elimination of the node layers.
+
+    ``K_ff`` is block tridiagonal in the layers (an element spans two), so the
+    Schur complement onto the contact layer follows from the top down,
+    ``S_top = K_top,top`` and ``S_k = K_kk - K_k,k+1 S_k+1^-1 K_k+1,k``, each
+    step a dense Cholesky factorisation, triangular solve and rank update
+    (BLAS 3), and ``G = S_0^-1``.  Returns None if a Schur complement is not
+    positive definite (the sparse LU path handles an indefinite tangent).
+    """
+    K = K.tocsr()
+
+    def block(rows, cols):
+        return K[rows][:, cols].toarray()
+
+    try:
+        S = block(layer_dofs[-1], layer_dofs[-1])
+        for k in range(len(layer_dofs) - 2, -1, -1):
+            L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
+            Y = sla.solve_triangular(
+                L, block(layer_dofs[k + 1], layer_dofs[k]), lower=True, overwrite_b=True, check_finite=False
+            )
+            S = block(layer_dofs[k], layer_dofs[k])
+            S -= blas.dsyrk(1.0, Y, trans=1, lower=1)  # lower triangle of Y^T Y: all Cholesky reads
+        L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    G, info = lapack.dpotri(L, lower=1, overwrite_c=1)
+    if info != 0:
+        return None
+    return np.tril(G) + np.tril(G, -1).T
+
+
 class _Tangent:
     """Factorised free-dof tangent and the flexibility matrix derived from it.
 
-    ``W`` needs ``K_ff^-1`` applied to one unit vector per contact dof; the
-    triangular solves dominate a step, so they run on ``_SOLVE_THREADS``
-    threads (SuperLU releases the GIL).
+    ``W`` is the contact block of ``K_ff^-1``.  On a layered mesh it comes from
+    dense block elimination of the layers (:func:`_layered_compliance`) when
+    that costs less; otherwise ``K_ff^-1`` is applied to one unit vector per
+    contact dof with the sparse LU factors, on ``_SOLVE_THREADS`` threads
+    (SuperLU releases the GIL).
     """
 
     def __init__(self, model: Model, K):
@@ -81,16 +121,19 @@ class _Tangent:
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
         self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
         self.n_free = free.size
-        def contact_block(cols):
-            E = np.zeros((self.n_free, cols.size))
-            E[self.contact_index[cols], np.arange(cols.size)] = 1.0
-            return self.lu.solve(E)[self.contact_index]
 
-        if 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
-            G = contact_block(np.arange(3 * n_lower))
-        else:
-            with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
-                G = np.hstack(list(pool.map(contact_block, np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS))))
+        G = None
+        self.method = "sparse"
+        layers = model.layer_dofs
+        if layers is not None:
+            m = max(d.size for d in layers)
+            dense_flops = ((len(layers) - 1) * 11.0 / 6.0 + 1.0) * float(m) ** 3
+            sparse_flops = 3 * n_lower * 2.0 * self.lu.nnz  # nnz of L + U
+            if dense_flops < _DENSE_RATE_RATIO * sparse_flops:
+                G = _layered_compliance(K, layers)
+                self.method = "layered" if G is not None else "sparse"
+        if G is None:
+            G = self._sparse_compliance(n_lower)
         G = G.reshape(n_lower, 3, n_lower, 3)
         G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
         T = model.frame
@@ -103,6 +146,18 @@ class _Tangent:
         # the local Newton matrix factorised in one iteration serves the next ones;
         # a step works on a copy, so that stepping twice from one state agrees
         self.workspace = NewtonWorkspace()
+
+    def _sparse_compliance(self, n_lower: int) -> np.ndarray:
+        def contact_block(cols):
+            E = np.zeros((self.n_free, cols.size))
+            E[self.contact_index[cols], np.arange(cols.size)] = 1.0
+            return self.lu.solve(E)[self.contact_index]
+
+        if 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
+            return contact_block(np.arange(3 * n_lower))
+        with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
+            parts = pool.map(contact_block, np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS))
+            return np.hstack(list(parts))
 
     def with_workspace(self, workspace: NewtonWorkspace) -> "_Tangent":
         other = copy.copy(self)

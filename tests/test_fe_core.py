@@ -647,3 +647,18 @@ def test_assembly_rejects_bad_input(mesh, pattern):
         sparsity_pattern(mesh.elements[:, :7], mesh.n_nodes)
     with pytest.raises(ValueError, match="n_nodes"):
         assemble_vector(mesh.elements, np.zeros((mesh.n_elements, 24)), 0)
+
+
+def test_node_layers_follow_the_element_layers():
+    """Layers counted through the elements from the lower face are the z levels
+    of a block; a mesh whose upper face is not the last layer is not layered."""
+    import dataclasses
+
+    from fe_contact.mesh import node_layers
+
+    mesh = block_mesh((0.02, 0.03, 0.01), (2, 3, 4))
+    layers = node_layers(mesh)
+    np.testing.assert_array_equal(layers, np.rint(mesh.nodes[:, 2] / 0.0025).astype(int))
+    assert np.all(layers[mesh.lower] == 0) and np.all(layers[mesh.upper] == 4)
+    middle = np.flatnonzero(layers == 2)
+    assert node_layers(dataclasses.replace(mesh, upper=middle)) is None

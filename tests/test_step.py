@@ -247,6 +247,32 @@ def test_reused_tangent_gives_the_same_steps():
     assert sum(r.tangent_updates for r in rb) < sum(r.newton_iterations for r in rb)
 
 
+def test_layered_flexibility_equals_sparse_solves(monkeypatch):
+    """The contact flexibility by dense elimination of the node layers is the
+    contact block of K_ff^-1 computed column by column with the sparse LU (the
+    plain path), on a deformed, rotated-frame configuration."""
+    import importlib
+
+    step_module = importlib.import_module("fe_contact.step")
+    from fe_contact.elasticity import internal_force_and_tangent
+    from fe_contact.mesh import node_layers
+
+    model = make_model(0.3, 0.05, angle_deg=30.0, divisions=(4, 3, 3))
+    layers = node_layers(model.mesh)
+    np.testing.assert_allclose(model.mesh.nodes[:, 2], layers * model.mesh.size[2] / 3, atol=1e-15)
+    state, _ = run(model, paper_commands(n_push=1))
+    _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
+                                         model.material, model.pattern)
+    monkeypatch.setattr(step_module, "_DENSE_RATE_RATIO", 1e9)
+    layered = step_module._Tangent(model, K)
+    monkeypatch.setattr(step_module, "_DENSE_RATE_RATIO", 0.0)
+    sparse = step_module._Tangent(model, K)
+    assert (layered.method, sparse.method) == ("layered", "sparse")
+    W_layered = layered.W_scaled * layered.w_mean
+    W_sparse = sparse.W_scaled * sparse.w_mean
+    np.testing.assert_allclose(W_layered, W_sparse, rtol=0, atol=1e-10 * np.abs(W_sparse).max())
+
+
 def test_paper_uzawa_and_newton_local_solvers_give_the_same_steps():
     """The paper's Uzawa loop and the semismooth Newton local solver solve the
     same contact problems: whole runs agree to the solver tolerances."""
