@@ -266,17 +266,37 @@ def second_piola_kirchhoff(E, material: Material) -> np.ndarray:
 
 
 def _stress_state(geometry, elements, U, material):
-    """``F`` and ``S`` at every Gauss point (the hot path of every Newton iteration)."""
-    H = _displacement_gradient(geometry, elements, U)
-    Ht = H.swapaxes(-1, -2)
-    E = H + Ht
-    E += np.matmul(Ht, H)
-    E *= 0.5  # green_lagrange(I + H), without forming I + H first
-    trace = E[..., 0, 0] + E[..., 1, 1] + E[..., 2, 2]
+    """``H = F - I`` and ``S`` at every Gauss point, component-major: shape
+    ``(3, 3, n_elems * n_qp)``.  The hot path of every Newton iteration: each
+    tensor component is one long vector, so the algebra is a few dozen
+    vectorised operations instead of batched 3x3 products."""
+    n_elems, n_qp = geometry.dvol.shape
+    Hq = _displacement_gradient(geometry, elements, U)  # (e, q, i, J) view
+    H = np.ascontiguousarray(Hq.transpose(2, 3, 0, 1)).reshape(3, 3, n_elems * n_qp)
+    E = np.empty_like(H)
+    for i in range(3):
+        for j in range(i, 3):
+            # green_lagrange(I + H), without forming I + H first
+            e_ij = H[i, j] + H[j, i] + H[0, i] * H[0, j] + H[1, i] * H[1, j] + H[2, i] * H[2, j]
+            e_ij *= 0.5
+            E[i, j] = e_ij
+            E[j, i] = e_ij
+    trace = E[0, 0] + E[1, 1] + E[2, 2]
     S = (2.0 * material.lame_mu) * E
     for k in range(3):
-        S[..., k, k] += material.lame_lambda * trace
-    return _I3 + H, S
+        S[k, k] += material.lame_lambda * trace
+    return H, S
+
+
+def _min_det(H) -> float:
+    """Smallest ``det(I + H)`` over component-major ``H`` (3, 3, n)."""
+    F = [[H[i, j] + (1.0 if i == j else 0.0) for j in range(3)] for i in range(3)]
+    det = (
+        F[0][0] * (F[1][1] * F[2][2] - F[1][2] * F[2][1])
+        - F[0][1] * (F[1][0] * F[2][2] - F[1][2] * F[2][0])
+        + F[0][2] * (F[1][0] * F[2][1] - F[1][1] * F[2][0])
+    )
+    return float(det.min())
 
 
 def stored_energy(geometry: ElementGeometry, elements, U, material: Material) -> float:
@@ -331,16 +351,21 @@ def internal_force(
         If shapes are inconsistent or ``U`` is not finite.
     """
     elements, U = _check_state(geometry, elements, U, material)
-    F, S = _stress_state(geometry, elements, U, material)
-    fe = _element_forces(geometry, F, S)
-    return assemble_vector(elements, fe, U.shape[0]), float(_det3(F).min())
+    H, S = _stress_state(geometry, elements, U, material)
+    fe = _element_forces(geometry, H, S)
+    return assemble_vector(elements, fe, U.shape[0]), _min_det(H)
 
 
-def _element_forces(geometry: ElementGeometry, F, S) -> np.ndarray:
+def _element_forces(geometry: ElementGeometry, H, S) -> np.ndarray:
+    """Element internal forces (n_elems, 8, 3) from component-major ``H``, ``S``."""
     n_elems, n_qp = geometry.dvol.shape
-    P = np.matmul(F, S)  # first Piola-Kirchhoff stress
+    P = S.copy()  # first Piola-Kirchhoff stress (I + H) S
+    for i in range(3):
+        for j in range(3):
+            P[i, j] += H[i, 0] * S[0, j] + H[i, 1] * S[1, j] + H[i, 2] * S[2, j]
     # f[e, a, i] = sum_(q, J) dV dN_a/dX_J P_iJ: one (8 x 3 n_qp)(3 n_qp x 3) product per element
-    return np.matmul(geometry.weighted_grad_rows, P.swapaxes(-1, -2).reshape(n_elems, 3 * n_qp, 3))
+    P = P.reshape(3, 3, n_elems, n_qp).transpose(2, 3, 1, 0).reshape(n_elems, 3 * n_qp, 3)
+    return np.matmul(geometry.weighted_grad_rows, P)
 
 
 def _element_tangents(geometry: ElementGeometry, F, S, material: Material) -> np.ndarray:
@@ -427,8 +452,13 @@ def internal_force_and_tangent(
         )
     if not np.array_equal(pattern.dofs, element_dofs(elements)):
         raise ValueError("pattern was built for a different connectivity than elements")
-    F, S = _stress_state(geometry, elements, U, material)
-    fe = _element_forces(geometry, F, S)
+    H, S = _stress_state(geometry, elements, U, material)
+    fe = _element_forces(geometry, H, S)
     f_int = assemble_vector(elements, fe, U.shape[0])
-    K = assemble_matrix(pattern, _element_tangents(geometry, F, S, material))
-    return f_int, K, float(_det3(F).min())
+    n_elems, n_qp = geometry.dvol.shape
+
+    def per_point(A):  # component-major (3, 3, e q) -> (e, q, 3, 3)
+        return np.ascontiguousarray(A.reshape(3, 3, n_elems, n_qp).transpose(2, 3, 0, 1))
+
+    K = assemble_matrix(pattern, _element_tangents(geometry, _I3 + per_point(H), per_point(S), material))
+    return f_int, K, _min_det(H)

@@ -357,11 +357,18 @@ def _well_conditioned(A) -> bool:
 
 
 def _factorise(J):
-    """LU factors of the Newton matrix, or None if it is exactly singular."""
-    lu, piv = sla.lu_factor(J, overwrite_a=True, check_finite=False)
+    """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
+    singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
+    place: no copy.  Solve with :func:`_lu_step`."""
+    lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
     if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
         return None
     return lu, piv
+
+
+def _lu_step(lu, rhs):
+    """``J^-1 rhs`` from the factors of ``J^T`` (:func:`_factorise`)."""
+    return sla.lu_solve(lu, rhs, trans=1, check_finite=False)
 
 
 def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
@@ -417,7 +424,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 # the stick / slip / open pattern and varies slowly within it, so
                 # an older factorisation usually still contracts; a triangular
                 # solve replaces the dense LU.  Kept only if |F| at least halves.
-                s_try = s + sla.lu_solve(lu, -F.ravel(), check_finite=False).reshape(n, 3)
+                s_try = s + _lu_step(lu, -F.ravel()).reshape(n, 3)
                 F_try = _alart_curnier(s_try, Wp, qp, mu, rho, fixed, jacobian=False)
                 psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
                 accepted = bool(psi_try <= _CHORD_CONTRACTION**2 * psi)
@@ -430,7 +437,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                     keep.lu = lu
                     keep.factorisations += 1
                 if lu is not None:
-                    step = sla.lu_solve(lu, -F.ravel(), check_finite=False)
+                    step = _lu_step(lu, -F.ravel())
                 else:
                     _, J = _alart_curnier(s, Wp, qp, mu, rho, fixed)  # lu_factor overwrote J
                     step = sla.lstsq(J, -F.ravel(), check_finite=False)[0]
