@@ -22,11 +22,12 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/pushplan demo --out $(OUT)
 
+# the two test workers already use both cores: no second thread in fe_contact's large dense kernels
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+	FE_CONTACT_DENSE_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -m slow
+	FE_CONTACT_DENSE_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadgroup -q -m slow
 
 bench: $(STAMP)
 	for script in local_solvers paper_case scaling planner; do \

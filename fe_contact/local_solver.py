@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from ._threads import dense_kernel
 from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
@@ -360,7 +361,8 @@ def _factorise(J):
     """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
     singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
     place: no copy.  Solve with :func:`_lu_step`."""
-    lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
+    with dense_kernel(J.shape[0]):
+        lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
     if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
         return None
     return lu, piv

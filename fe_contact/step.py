@@ -28,12 +28,12 @@ import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 from scipy.linalg import blas, lapack
 
+from ._threads import dense_kernel, dense_threads
 from .elasticity import internal_force, internal_force_and_tangent
 from .local_solver import NewtonWorkspace, solve_local
 from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
-_SOLVE_THREADS = 2
 _THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
 # Dense BLAS-3 runs this many times more flop/s than the SuperLU triangular
 # solves (measured on the paper mesh: see benchmarks/paper_case.py).
@@ -85,6 +85,11 @@ def _layered_compliance(K, layer_dofs) -> np.ndarray | None:
     def block(rows, cols):
         return K[rows][:, cols].toarray()
 
+    with dense_kernel(max(d.size for d in layer_dofs)):
+        return _eliminate_layers(block, layer_dofs)
+
+
+def _eliminate_layers(block, layer_dofs) -> np.ndarray | None:
     try:
         S = block(layer_dofs[-1], layer_dofs[-1])
         for k in range(len(layer_dofs) - 2, -1, -1):
@@ -109,8 +114,8 @@ class _Tangent:
     ``W`` is the contact block of ``K_ff^-1``.  On a layered mesh it comes from
     dense block elimination of the layers (:func:`_layered_compliance`) when
     that costs less; otherwise ``K_ff^-1`` is applied to one unit vector per
-    contact dof with the sparse LU factors, on ``_SOLVE_THREADS`` threads
-    (SuperLU releases the GIL).
+    contact dof with the sparse LU factors, on :func:`~fe_contact._threads.dense_threads`
+    threads (SuperLU releases the GIL).
     """
 
     def __init__(self, model: Model, K):
@@ -153,10 +158,11 @@ class _Tangent:
             E[self.contact_index[cols], np.arange(cols.size)] = 1.0
             return self.lu.solve(E)[self.contact_index]
 
-        if 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
+        threads = dense_threads()
+        if threads == 1 or 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
             return contact_block(np.arange(3 * n_lower))
-        with ThreadPoolExecutor(_SOLVE_THREADS) as pool:
-            parts = pool.map(contact_block, np.array_split(np.arange(3 * n_lower), _SOLVE_THREADS))
+        with ThreadPoolExecutor(threads) as pool:
+            parts = pool.map(contact_block, np.array_split(np.arange(3 * n_lower), threads))
             return np.hstack(list(parts))
 
     def with_workspace(self, workspace: NewtonWorkspace) -> "_Tangent":

@@ -671,8 +671,9 @@ def run_sweep(
             raise SweepError(f"--figure {figure}: the sweep file has no [heatmap] table")
         if figure.suffix not in HEATMAP_SUFFIXES or not figure.parent.is_dir() or not os.access(figure.parent, os.W_OK):
             raise SweepError(f"--figure must be a {'/'.join(HEATMAP_SUFFIXES)} file in a writable folder, got {figure}")
-    # one BLAS thread per case process (inherited by pool and LocalCluster workers)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    # one BLAS thread per case process (inherited by pool and LocalCluster workers),
+    # also in the large dense kernels of fe_contact (fe_contact._threads)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS"):
         os.environ.setdefault(var, "1")
     with contextlib.ExitStack() as stack:
         client = _dask_client(stack, scheduler, workers, cluster_options or {}) if executor == "dask" else None
