@@ -30,7 +30,7 @@ test-slow: $(STAMP)
 	FE_CONTACT_DENSE_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadgroup -q -m slow
 
 bench: $(STAMP)
-	for script in local_solvers paper_case scaling planner; do \
+	for script in local_solvers paper_case planning_step scaling planner; do \
 		$(BIN)/python benchmarks/$$script.py || exit 1; done
 
 clean:

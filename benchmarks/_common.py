@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import scipy
 
+from fe_contact._threads import dense_threads
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -24,6 +26,7 @@ def machine_info() -> dict:
         "numpy": np.__version__,
         "scipy": scipy.__version__,
         "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
+        "dense_kernel_threads": dense_threads(),  # BLAS threads of the large dense kernels
     }
 
 

@@ -35,9 +35,6 @@ from .model import Command, IterLog, Model, NodeStatus, State, Status, StepRepor
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
 _THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
-# Dense BLAS-3 runs this many times more flop/s than the SuperLU triangular
-# solves (measured on the paper mesh: see benchmarks/paper_case.py).
-_DENSE_RATE_RATIO = 5.0
 SEPARATION_FORCE = 1e-9
 """Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
 SLIP_DISPLACEMENT = 1e-9
@@ -108,6 +105,41 @@ def _eliminate_layers(block, layer_dofs) -> np.ndarray | None:
     return np.tril(G) + np.tril(G, -1).T
 
 
+# Cost model of a tangent against a modified-Newton iteration, in seconds on the
+# CI-class CPU (fitted to benchmarks/paper_case.py, planning_step.py and the
+# 5.6e4-dof scaling run to within 2x).  It only decides whether refreshing the
+# tangent pays; being a function of sizes, not of timings, it keeps runs
+# bitwise repeatable.
+# The same rates choose how W is computed.
+_S_PER_GAUSS_POINT = 2.6e-7  # internal forces of one Gauss point
+_S_PER_TANGENT_POINT = 3e-6  # tangent stiffness of one Gauss point
+_SPARSE_FLOPS = 1.4e9  # flop/s of one SuperLU solve pair (one thread)
+_SPARSE_W_FLOPS = 6e9  # flop/s of the multi-right-hand-side solves for W (two threads)
+_FACTOR_SOLVES = 60  # a sparse factorisation costs about this many solves
+_DENSE_FLOPS = 4e10  # flop/s of dense LU / layer elimination (BLAS 3, two threads)
+_FRESH_RATE = 0.05  # contraction per iteration with a fresh tangent (measured 0.03-0.05)
+_ITERATION_OVERHEAD_S = 4e-3  # interpreter work of an iteration (local solver loop), planning mesh
+
+
+def _refresh_pays(tangent: "_Tangent", rate: float, rel_res: float, opts, it: int) -> bool:
+    """Whether a new tangent saves more iterations than it costs.
+
+    At contraction ``rate`` per iteration, reaching ``newton_tol`` from
+    ``rel_res`` takes ``log(tol / res) / log(rate)`` iterations, with a fresh
+    tangent about ``log(tol / res) / log(_FRESH_RATE)``.  A tangent that does
+    not contract, or would not converge within ``newton_max_iter``, is always
+    refreshed.
+    """
+    if rate >= 1.0:
+        return True
+    gap = math.log(opts.newton_tol / rel_res)
+    needed = gap / math.log(rate)
+    if it + needed > opts.newton_max_iter:
+        return True
+    saved = needed - gap / math.log(_FRESH_RATE)
+    return saved * tangent.iteration_s > tangent.build_s
+
+
 class _Tangent:
     """Factorised free-dof tangent and the flexibility matrix derived from it.
 
@@ -130,15 +162,25 @@ class _Tangent:
         G = None
         self.method = "sparse"
         layers = model.layer_dofs
+        sparse_flops = 3 * n_lower * 2.0 * self.lu.nnz  # nnz of L + U
         if layers is not None:
             m = max(d.size for d in layers)
             dense_flops = ((len(layers) - 1) * 11.0 / 6.0 + 1.0) * float(m) ** 3
-            sparse_flops = 3 * n_lower * 2.0 * self.lu.nnz  # nnz of L + U
-            if dense_flops < _DENSE_RATE_RATIO * sparse_flops:
+            if dense_flops / _DENSE_FLOPS < sparse_flops / _SPARSE_W_FLOPS:
                 G = _layered_compliance(K, layers)
                 self.method = "layered" if G is not None else "sparse"
         if G is None:
             G = self._sparse_compliance(n_lower)
+        # estimated seconds (see _refresh_pays)
+        n_points = model.geometry.dvol.size
+        solve_s = 2.0 * self.lu.nnz / _SPARSE_FLOPS
+        if self.method == "layered":
+            w_s = dense_flops / _DENSE_FLOPS
+        else:
+            w_s = sparse_flops / _SPARSE_W_FLOPS
+        local_lu_s = (2.0 / 3.0) * (3.0 * n_lower) ** 3 / _DENSE_FLOPS
+        self.build_s = n_points * _S_PER_TANGENT_POINT + _FACTOR_SOLVES * solve_s + w_s
+        self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_lu_s
         G = G.reshape(n_lower, 3, n_lower, 3)
         G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
         T = model.frame
@@ -291,7 +333,8 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
             break
         # (the first correction of a step also settles the contact statuses, so
         # its contraction says little about the tangent)
-        if not need_tangent and it >= 2 and rel_res > opts.refresh_ratio * prev_res:
+        if (not need_tangent and it >= 2 and rel_res > opts.refresh_ratio * prev_res
+                and _refresh_pays(tangent, rel_res / prev_res, rel_res, opts, it)):
             # the reused tangent contracts too slowly here: refresh it
             t_phase = time.perf_counter()
             _, K, _ = internal_force_and_tangent(model.geometry, mesh.elements, U, model.material, model.pattern)

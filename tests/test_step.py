@@ -263,9 +263,9 @@ def test_layered_flexibility_equals_sparse_solves(monkeypatch):
     state, _ = run(model, paper_commands(n_push=1))
     _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
                                          model.material, model.pattern)
-    monkeypatch.setattr(step_module, "_DENSE_RATE_RATIO", 1e9)
+    monkeypatch.setattr(step_module, "_DENSE_FLOPS", 1e300)  # dense work free: layered
     layered = step_module._Tangent(model, K)
-    monkeypatch.setattr(step_module, "_DENSE_RATE_RATIO", 0.0)
+    monkeypatch.setattr(step_module, "_DENSE_FLOPS", 1e-300)  # dense work prohibitive: sparse
     sparse = step_module._Tangent(model, K)
     assert (layered.method, sparse.method) == ("layered", "sparse")
     W_layered = layered.W_scaled * layered.w_mean
@@ -292,3 +292,21 @@ def test_ill_conditioned_tangent_is_reported_not_raised():
     s1, rep = step(model, s0, Command(dz=-0.1e-3))
     assert rep.status.value == "tangent_singular", rep.message
     assert s1 is s0
+
+
+def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
+    """A slow contraction is worth a new tangent only if the iterations it saves
+    cost more than building it; a diverging or too slow one always is."""
+    import importlib
+    from types import SimpleNamespace
+
+    refresh_pays = importlib.import_module("fe_contact.step")._refresh_pays
+    opts = SolverOptions(newton_tol=1e-10, newton_max_iter=30)
+    cheap = SimpleNamespace(build_s=0.01, iteration_s=0.005)
+    costly = SimpleNamespace(build_s=50.0, iteration_s=1.0)
+    # from 1e-2 at rate 0.4: 20.1 iterations left, 6.1 with a fresh tangent
+    assert refresh_pays(cheap, 0.4, 1e-2, opts, it=2)
+    assert not refresh_pays(costly, 0.4, 1e-2, opts, it=2)
+    assert refresh_pays(SimpleNamespace(build_s=13.0, iteration_s=1.0), 0.4, 1e-2, opts, it=2)
+    assert refresh_pays(costly, 1.2, 1e-2, opts, it=2)  # not contracting
+    assert refresh_pays(costly, 0.8, 1e-2, opts, it=2)  # 72 iterations > the 28 left
