@@ -119,7 +119,8 @@ class NewtonWorkspace:
 
 
 def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
-    """``||r - proj_K(r - modified(u))|| / max(||q||, ||r||, ||u||)`` (1 if all are 0).
+    """``||r - proj_K(r - modified(u))|| / max(||q||, ||r||, ||u||)`` (the bare
+    norm if all three are 0).
 
     The normalisation is the one of Siconos' ``fc3d_compute_error``.
     """
@@ -129,6 +130,11 @@ def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
     if n == 0:
         return 0.0
     mx, my = _as_coefficients(mu_x, mu_y, n)
+    return _natural_map(r, u, q, mx, my)
+
+
+def _natural_map(r, u, q, mx, my) -> float:
+    """:func:`natural_map_residual` with checked coefficient arrays (inner loops)."""
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(u))):
         return float("inf")
     with np.errstate(over="ignore", invalid="ignore"):
@@ -261,7 +267,7 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     while it < max_iter:
         u = (W @ r.ravel()).reshape(n, 3) + q
         if it % check_every == 0:
-            residual = natural_map_residual(r, u, q, mx, my)
+            residual = _natural_map(r, u, q, mx, my)
             history.append(residual)
             if residual <= tol:
                 break
@@ -279,7 +285,7 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
         r = _project(r - omega * rho * _modified(u, mx, my), mx, my)
         it += 1
     u = (W @ r.ravel()).reshape(n, 3) + q
-    residual = natural_map_residual(r, u, q, mx, my)
+    residual = _natural_map(r, u, q, mx, my)
     if residual > best_res:
         r, residual = best_r, best_res
         u = (W @ r.ravel()).reshape(n, 3) + q
@@ -403,7 +409,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
         # could undo a convergence decided on the unprojected one
         rr = _project(s * D, mx, my)
         uu = (W @ rr.ravel()).reshape(n, 3) + q
-        return natural_map_residual(rr, uu, q, mx, my)
+        return _natural_map(rr, uu, q, mx, my)
 
     residual = true_residual(s)
     history = [residual]
@@ -463,6 +469,6 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
             eta = max(0.2 * eta, 1e-10 * w_ref)
     r_final = _project(s * D, mx, my)
     u_final = (W @ r_final.ravel()).reshape(n, 3) + q
-    residual = natural_map_residual(r_final, u_final, q, mx, my)
+    residual = _natural_map(r_final, u_final, q, mx, my)
     history[-1] = residual
     return LocalSolution(r_final, u_final, it, residual, residual <= tol, tuple(history), "newton")

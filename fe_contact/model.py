@@ -86,12 +86,13 @@ class SolverOptions:
         Modified Newton: keep the tangent (its factorisation and the flexibility
         matrix) from iteration to iteration and from step to step, refreshing it
         only when the out-of-balance force contracts by less than
-        ``refresh_ratio`` per iteration.  The converged solution is the same to
-        the tolerances; the flexibility matrix, the dominant cost, is computed
-        far less often.
+        ``refresh_ratio`` per iteration and the iterations a new tangent would
+        save cost more than building it (a size-based estimate, so runs are
+        repeatable).  The converged solution is the same to the tolerances; the
+        flexibility matrix, the dominant cost, is computed far less often.
     refresh_ratio : float
         Contraction factor of the relative residual above which a reused
-        tangent is recomputed.
+        tangent may be recomputed.
     """
 
     local_method: str = "newton"

@@ -79,30 +79,41 @@ def _layered_compliance(K, layer_dofs) -> np.ndarray | None:
     """
     K = K.tocsr()
 
-    def block(rows, cols):
-        return K[rows][:, cols].toarray()
+    def block(rows, cols):  # Fortran order: LAPACK / BLAS then work in place
+        return K[rows][:, cols].toarray(order="F")
 
     with dense_kernel(max(d.size for d in layer_dofs)):
         return _eliminate_layers(block, layer_dofs)
 
 
 def _eliminate_layers(block, layer_dofs) -> np.ndarray | None:
+    # in place throughout: at most three layer-sized dense matrices are alive
     try:
         S = block(layer_dofs[-1], layer_dofs[-1])
         for k in range(len(layer_dofs) - 2, -1, -1):
             L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
+            del S
             Y = sla.solve_triangular(
                 L, block(layer_dofs[k + 1], layer_dofs[k]), lower=True, overwrite_b=True, check_finite=False
             )
-            S = block(layer_dofs[k], layer_dofs[k])
-            S -= blas.dsyrk(1.0, Y, trans=1, lower=1)  # lower triangle of Y^T Y: all Cholesky reads
+            del L
+            # S = K_kk - Y^T Y, lower triangle (all Cholesky reads)
+            S = blas.dsyrk(-1.0, Y, beta=1.0, c=block(layer_dofs[k], layer_dofs[k]), trans=1, lower=1, overwrite_c=1)
+            del Y
         L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
+        del S
     except np.linalg.LinAlgError:
         return None
     G, info = lapack.dpotri(L, lower=1, overwrite_c=1)
     if info != 0:
         return None
-    return np.tril(G) + np.tril(G, -1).T
+    # mirror the lower triangle, a block of rows at a time (no n^2 index arrays)
+    n, b = G.shape[0], 512
+    for i in range(0, n, b):
+        D = G[i:i + b, i:i + b]
+        D[...] = np.tril(D) + np.tril(D, -1).T
+        G[i:i + b, i + b:] = G[i + b:, i:i + b].T
+    return G
 
 
 # Cost model of a tangent against a modified-Newton iteration, in seconds on the
@@ -181,15 +192,20 @@ class _Tangent:
         local_lu_s = (2.0 / 3.0) * (3.0 * n_lower) ** 3 / _DENSE_FLOPS
         self.build_s = n_points * _S_PER_TANGENT_POINT + _FACTOR_SOLVES * solve_s + w_s
         self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_lu_s
-        G = G.reshape(n_lower, 3, n_lower, 3)
-        G = 0.5 * (G + G.transpose(2, 3, 0, 1))  # exact symmetry; K_ff is symmetric
+        if self.method == "sparse":
+            G = 0.5 * (G + G.T)  # exact symmetry (the layered G is symmetric by construction)
+        # to the local frames, W = (I x T) G (I x T)^T, as two batched products
         T = model.frame
-        W = np.einsum("ij,ajbk,lk->aibl", T, G, T).reshape(3 * n_lower, 3 * n_lower)
+        m = 3 * n_lower
+        W = (T @ G.reshape(n_lower, 3, m)).reshape(n_lower, 3, n_lower, 3) @ T.T
+        del G
+        W = W.reshape(m, m)
         # Divided by its mean diagonal compliance, u = W r + q has force units, so
         # the natural-map residual (r - proj(r - modified(u))) is homogeneous; the
         # contact law is invariant under this scaling of u.  Kept scaled, once.
         self.w_mean = float(np.mean(np.diag(W)))
-        self.W_scaled = W / self.w_mean
+        W /= self.w_mean
+        self.W_scaled = W
         # the local Newton matrix factorised in one iteration serves the next ones;
         # a step works on a copy, so that stepping twice from one state agrees
         self.workspace = NewtonWorkspace()

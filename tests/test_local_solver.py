@@ -12,9 +12,9 @@ Measured by ``benchmarks/local_solvers.py`` (2 cores, single-threaded BLAS), tol
 ==========  ========  ==========================  ================================
 problem     contacts  newton                      uzawa (paper, safeguarded)
 ==========  ========  ==========================  ================================
-boxes       48        40 it, 1.7e-9, 0.17 s       20000 it, 0.143 (stalls), 11 s
-capsules    286       39 it, 3.3e-9, 2.1 s        20000 it, 3.8e-6, 22 s
-lmgc        60        35 it, 1.1e-9, 0.09 s       600 it, 9.9e-9 (converged), 0.4 s
+boxes       48        40 it, 1.7e-9, 0.06 s       20000 it, 0.144 (stalls), 2.5 s
+capsules    286       45 it, 3.3e-9, 0.75 s       20000 it, 3.8e-6, 7.5 s
+lmgc        60        31 it, 4.6e-9, 0.03 s       570 it, 9.9e-9 (converged), 0.14 s
 ==========  ========  ==========================  ================================
 
 The FCLIB files' ``/solution/r`` is all zeros (the writer stored no reaction);
