@@ -19,7 +19,7 @@ import numpy as np
 
 from .assembly import SparsityPattern, sparsity_pattern
 from .elasticity import ElementGeometry, Material, element_geometry
-from .mesh import BlockMesh, face_tributary_areas, node_layers
+from .mesh import BlockMesh, face_tributary_areas, nested_dissection_order, node_layers
 
 from .local_solver import METHODS as LOCAL_METHODS
 
@@ -162,6 +162,10 @@ class Model:
     """(n_lower,) tributary area of each contact node, m^2."""
     upper_area: np.ndarray = field(init=False, repr=False)
     """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
+    free_order: np.ndarray | None = field(init=False, repr=False)
+    """Fill-reducing order of the free dofs for the sparse factorisation: positions
+    in ``free_dofs`` (:func:`fe_contact.mesh.nested_dissection_order`); None
+    leaves the ordering to SuperLU."""
     layer_dofs: tuple | None = field(init=False, repr=False)
     """Free dofs by node layer, contact layer first (``lower_dofs`` order), up to
     the layer under the upper face; None if the mesh is not layered
@@ -194,6 +198,12 @@ class Model:
         set_(self, "frame", local_frame(self.friction.angle))
         set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
         set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
+        order = nested_dissection_order(mesh)
+        if order is None:
+            set_(self, "free_order", None)
+        else:
+            dofs = (3 * order[:, None] + np.arange(3)).ravel()
+            set_(self, "free_order", np.searchsorted(self.free_dofs, dofs[mask[dofs]]))
         layers = node_layers(mesh)
         if layers is None:
             set_(self, "layer_dofs", None)

@@ -67,6 +67,22 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
     return x + translation - X
 
 
+def factorise_free(K, free: np.ndarray, order: np.ndarray | None):
+    """SuperLU factors of ``K[free][:, free]``, its rows and columns taken in
+    ``order`` (positions in ``free``; :attr:`Model.free_order`) if given.
+
+    With an order, SuperLU keeps it and works in symmetric mode (diagonal
+    pivots unless one is below 0.01 of its column, the tangent being
+    symmetric); without, it orders by minimum degree on ``K + K^T``.
+    Raises RuntimeError if the matrix is singular.
+    """
+    if order is None:
+        return spla.splu(K[free][:, free].tocsc(), permc_spec="MMD_AT_PLUS_A")
+    ordered = free[order]
+    return spla.splu(K[ordered][:, ordered].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.01,
+                     options={"SymmetricMode": True})
+
+
 def _layered_compliance(K, layer_dofs) -> np.ndarray | None:
     """Contact block of ``K_ff^-1`` by block elimination of the node layers.
 
@@ -163,8 +179,8 @@ class _Tangent:
 
     def __init__(self, model: Model, K):
         free = model.free_dofs
-        Kff = K[free][:, free].tocsc()
-        self.lu = spla.splu(Kff, permc_spec="MMD_AT_PLUS_A")
+        self.order = model.free_order
+        self.lu = factorise_free(K, free, self.order)
         n_lower = model.n_contacts
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
         self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
@@ -214,7 +230,7 @@ class _Tangent:
         def contact_block(cols):
             E = np.zeros((self.n_free, cols.size))
             E[self.contact_index[cols], np.arange(cols.size)] = 1.0
-            return self.lu.solve(E)[self.contact_index]
+            return self.solve(E)[self.contact_index]
 
         threads = dense_threads()
         if threads == 1 or 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
@@ -229,13 +245,18 @@ class _Tangent:
         return other
 
     def solve(self, rhs_free: np.ndarray) -> np.ndarray:
-        return self.lu.solve(rhs_free)
+        """``K_ff^-1 rhs`` for one right-hand side (n_free,) or several (n_free, k)."""
+        if self.order is None:
+            return self.lu.solve(rhs_free)
+        x = np.empty_like(rhs_free)
+        x[self.order] = self.lu.solve(rhs_free[self.order])
+        return x
 
     def contact_response(self, force_world: np.ndarray) -> np.ndarray:
         """``K_ff^-1 C^T f`` for contact-node forces ``f`` (n_lower, 3), world frame."""
         rhs = np.zeros(self.n_free)
         rhs[self.contact_index] = force_world.ravel()
-        return self.lu.solve(rhs)
+        return self.solve(rhs)
 
 
 def step(model: Model, state: State, command: Command, local_problem_hook=None) -> tuple[State, StepReport]:

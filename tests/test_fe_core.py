@@ -662,3 +662,20 @@ def test_node_layers_follow_the_element_layers():
     assert np.all(layers[mesh.lower] == 0) and np.all(layers[mesh.upper] == 4)
     middle = np.flatnonzero(layers == 2)
     assert node_layers(dataclasses.replace(mesh, upper=middle)) is None
+
+
+def test_nested_dissection_order_puts_separators_last():
+    """A permutation of the nodes whose last block is the middle plane across the
+    longest direction (the top separator); None for nodes off a tensor grid."""
+    import dataclasses
+
+    from fe_contact.mesh import nested_dissection_order
+
+    mesh = block_mesh((0.04, 0.02, 0.01), (8, 4, 2))
+    order = nested_dissection_order(mesh)
+    np.testing.assert_array_equal(np.sort(order), np.arange(mesh.n_nodes))
+    middle = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))  # x = 0 plane, 5 x 3 nodes
+    np.testing.assert_array_equal(np.sort(order[-middle.size:]), middle)
+    nodes = mesh.nodes.copy()
+    nodes[0, 0] += 1e-4  # one node off the grid planes
+    assert nested_dissection_order(dataclasses.replace(mesh, nodes=nodes)) is None
