@@ -118,33 +118,64 @@ def sparsity_pattern(elements, n_nodes: int) -> SparsityPattern:
     Returns
     -------
     SparsityPattern
+        ``indptr`` and ``indices`` are int32 unless ``3 n_nodes`` or the number
+        of nonzeros does not fit, then int64 (scipy's default index type).
 
     Raises
     ------
     ValueError
         If ``elements`` has the wrong shape or ids outside ``[0, n_nodes)``.
+
+    Notes
+    -----
+    The pattern is built at node level (64 node pairs per element instead of
+    576 dof pairs) and expanded to 3x3 dof blocks: with ``deg[a]`` the number
+    of distinct nodes sharing an element with node ``a`` (``a`` included) and
+    ``ptr`` the node-level CSR offsets, dof row ``3a + i`` starts at
+    ``9 ptr[a] + 3 i deg[a]`` and holds, for each neighbour ``b`` in increasing
+    order, the columns ``3b, 3b + 1, 3b + 2``. The result is identical to
+    taking ``np.unique`` of the 576 dof-pair keys of every element.
     """
     elements = _check_elements(elements, n_nodes)
-    n_dofs = 3 * int(n_nodes)
+    n_nodes = int(n_nodes)
+    n_dofs = 3 * n_nodes
+    n_elems = elements.shape[0]
     dofs = element_dofs(elements)
-    rows = np.broadcast_to(dofs[:, :, None], (dofs.shape[0], 24, 24))
-    cols = np.broadcast_to(dofs[:, None, :], (dofs.shape[0], 24, 24))
-    # Row-major keys sort in CSR order, so np.unique gives both the structure
-    # and, through its inverse, the scatter map.
-    keys = (rows.astype(np.int64) * n_dofs + cols).ravel()
-    unique_keys, scatter = np.unique(keys, return_inverse=True)
+    three = np.arange(3)
+    # Row-major node-pair keys sort in CSR order, so np.unique gives the
+    # node-level structure and, through its inverse, the pair of every entry.
+    keys = (elements[:, :, None] * n_nodes + elements[:, None, :]).ravel()
+    pairs, pair_of = np.unique(keys, return_inverse=True)
+    pair_rows = pairs // n_nodes
+    pair_cols = pairs - pair_rows * n_nodes
+    degree = np.bincount(pair_rows, minlength=n_nodes)
+    node_ptr = np.zeros(n_nodes + 1, dtype=np.int64)
+    np.cumsum(degree, out=node_ptr[1:])
+    nnz = 9 * pairs.size
     # scipy's default index type; int64 only when int32 would overflow
-    fits_int32 = max(n_dofs, unique_keys.size) < np.iinfo(np.int32).max
+    fits_int32 = max(n_dofs, nnz) < np.iinfo(np.int32).max
     index_dtype = np.int32 if fits_int32 else np.int64
-    unique_rows = unique_keys // n_dofs
-    indices = (unique_keys % n_dofs).astype(index_dtype)
-    indptr = np.zeros(n_dofs + 1, dtype=index_dtype)
-    np.cumsum(np.bincount(unique_rows, minlength=n_dofs), out=indptr[1:])
+    row_start = (9 * node_ptr[:-1, None] + 3 * degree[:, None] * three).ravel()
+    indptr = np.empty(n_dofs + 1, dtype=index_dtype)
+    indptr[:-1] = row_start
+    indptr[-1] = nnz
+    # Dof row 3a + i is the slice [3 ptr[a], 3 ptr[a+1]) of the pair columns
+    # expanded to (3b, 3b + 1, 3b + 2): gather it by shifting each row's range.
+    pair_dof_cols = ((3 * pair_cols)[:, None] + three).astype(index_dtype).ravel()
+    shift = np.repeat(3 * node_ptr[:-1], 3) - row_start
+    indices = pair_dof_cols[np.arange(nnz) + np.repeat(shift, np.repeat(3 * degree, 3))]
+    # Entry (e, 3a+i, 3b+j), with p the pair (elements[e, a], elements[e, b]) and
+    # A = elements[e, a], sits at 9 ptr[A] + 3 i deg[A] + 3 (p - ptr[A]) + j.
+    pair_base = (6 * node_ptr[elements])[:, :, None] + 3 * pair_of.reshape(n_elems, 8, 8)
+    col_part = (pair_base[:, :, :, None] + three).reshape(n_elems, 8, 1, 24)  # (e, a, 1, 3b+j)
+    row_part = ((3 * degree[elements])[:, :, None] * three)[:, :, :, None]  # (e, a, i, 1)
+    scatter = np.empty((n_elems, 8, 3, 24), dtype=np.int64)
+    np.add(col_part, row_part, out=scatter)
     return SparsityPattern(
         n_dofs=n_dofs,
         indptr=indptr,
         indices=indices,
-        scatter=scatter.ravel().astype(np.int64),
+        scatter=scatter.reshape(-1),
         dofs=dofs,
     )
 

@@ -26,8 +26,7 @@ __all__ = [
     "block_mesh",
     "surface_quads",
     "face_tributary_areas",
-    "node_layers",
-    "nested_dissection_order",
+    "nested_dissection_parts",
     "HEX8_FACES",
 ]
 
@@ -326,44 +325,8 @@ def face_tributary_areas(mesh: BlockMesh, face_nodes) -> np.ndarray:
     return areas
 
 
-def node_layers(mesh: BlockMesh) -> np.ndarray | None:
-    """Layer of every node counted in elements from the lower face (layer 0).
-
-    A node is in layer ``k + 1`` if it shares an element with a layer-``k``
-    node and is in no lower layer.  Returns None unless every element spans
-    exactly two consecutive layers and the upper face is exactly the last
-    layer: then, and only then, the stiffness matrix is block tridiagonal in
-    the layers (what :mod:`fe_contact.step` exploits to compute the contact
-    flexibility).
-
-    Returns
-    -------
-    ndarray of int64, shape (n_nodes,), or None
-    """
-    if not isinstance(mesh, BlockMesh):
-        raise ValueError(f"mesh must be a BlockMesh, got {type(mesh).__name__}")
-    layer = np.full(mesh.n_nodes, -1, dtype=np.int64)
-    layer[mesh.lower] = 0
-    elements = mesh.elements
-    k = 0
-    while True:
-        touching = np.any(layer[elements] == k, axis=1)
-        new = np.unique(elements[touching])
-        new = new[layer[new] < 0]
-        if new.size == 0:
-            break
-        k += 1
-        layer[new] = k
-    el_layers = layer[elements]
-    spans = el_layers.max(axis=1) - el_layers.min(axis=1)
-    upper_is_last = np.array_equal(np.sort(mesh.upper), np.flatnonzero(layer == k))
-    if np.any(layer < 0) or np.any(spans != 1) or not upper_is_last or k < 1:
-        return None
-    return layer
-
-
-def nested_dissection_order(mesh: BlockMesh, leaf: int = 64) -> np.ndarray | None:
-    """Geometric nested-dissection ordering of the nodes of a tensor-product grid.
+def nested_dissection_parts(mesh: BlockMesh, leaf: int = 64) -> list[np.ndarray] | None:
+    """Geometric nested dissection of the nodes of a tensor-product grid, by part.
 
     The grid box is cut recursively across its longest direction by a plane of
     nodes (a separator: hex8 elements only join neighbouring planes), the two
@@ -375,9 +338,11 @@ def nested_dissection_order(mesh: BlockMesh, leaf: int = 64) -> np.ndarray | Non
 
     Returns
     -------
-    ndarray of int64, shape (n_nodes,), or None
-        A permutation of the node ids; None if the nodes do not form a tensor
-        grid.
+    list of ndarray of int64, or None
+        The leaf boxes and separators in elimination order (their
+        concatenation is a permutation of the node ids; each part is one
+        supernode of :mod:`fe_contact.cholesky`); None if the nodes do not
+        form a tensor grid.
     """
     if not isinstance(mesh, BlockMesh):
         raise ValueError(f"mesh must be a BlockMesh, got {type(mesh).__name__}")
@@ -410,4 +375,4 @@ def nested_dissection_order(mesh: BlockMesh, leaf: int = 64) -> np.ndarray | Non
         parts.append(box(sep_lo, sep_hi))
 
     order([0, 0, 0], [s - 1 for s in shape])
-    return np.concatenate(parts)
+    return parts

@@ -19,7 +19,8 @@ import numpy as np
 
 from .assembly import SparsityPattern, sparsity_pattern
 from .elasticity import ElementGeometry, Material, element_geometry
-from .mesh import BlockMesh, face_tributary_areas, nested_dissection_order, node_layers
+from .cholesky import SupernodalStructure, supernodal_structure
+from .mesh import BlockMesh, face_tributary_areas, nested_dissection_parts
 
 from .local_solver import METHODS as LOCAL_METHODS
 
@@ -162,14 +163,11 @@ class Model:
     """(n_lower,) tributary area of each contact node, m^2."""
     upper_area: np.ndarray = field(init=False, repr=False)
     """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
-    free_order: np.ndarray | None = field(init=False, repr=False)
-    """Fill-reducing order of the free dofs for the sparse factorisation: positions
-    in ``free_dofs`` (:func:`fe_contact.mesh.nested_dissection_order`); None
-    leaves the ordering to SuperLU."""
-    layer_dofs: tuple | None = field(init=False, repr=False)
-    """Free dofs by node layer, contact layer first (``lower_dofs`` order), up to
-    the layer under the upper face; None if the mesh is not layered
-    (:func:`fe_contact.mesh.node_layers`)."""
+    factor_structure: SupernodalStructure | None = field(init=False, repr=False)
+    """Symbolic multifrontal Cholesky factorisation of the free-dof stiffness:
+    nested dissection of the interior, the contact dofs last in ``lower_dofs``
+    order (:mod:`fe_contact.cholesky`); None if the mesh is not a tensor grid
+    (then SuperLU factorises and orders)."""
 
     def __post_init__(self):
         if not isinstance(self.mesh, BlockMesh):
@@ -198,18 +196,18 @@ class Model:
         set_(self, "frame", local_frame(self.friction.angle))
         set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
         set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
-        order = nested_dissection_order(mesh)
-        if order is None:
-            set_(self, "free_order", None)
+        parts = nested_dissection_parts(mesh)
+        if parts is None:
+            set_(self, "factor_structure", None)
         else:
-            dofs = (3 * order[:, None] + np.arange(3)).ravel()
-            set_(self, "free_order", np.searchsorted(self.free_dofs, dofs[mask[dofs]]))
-        layers = node_layers(mesh)
-        if layers is None:
-            set_(self, "layer_dofs", None)
-        else:
-            interior = [(3 * np.flatnonzero(layers == k)[:, None] + np.arange(3)).ravel() for k in range(1, layers.max())]
-            set_(self, "layer_dofs", (self.lower_dofs.ravel(), *interior))
+            is_contact = np.zeros(mesh.n_dofs, dtype=bool)
+            is_contact[self.lower_dofs] = True
+            interior = mask & ~is_contact
+            dof_parts = [(3 * nodes[:, None] + np.arange(3)).ravel() for nodes in parts]
+            set_(self, "factor_structure", supernodal_structure(
+                self.pattern.indptr, self.pattern.indices, self.free_dofs,
+                [d[interior[d]] for d in dof_parts], self.lower_dofs.ravel(),
+            ))
 
     @property
     def n_contacts(self) -> int:

@@ -24,11 +24,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse.linalg as spla
-from scipy.linalg import blas, lapack
 
 from ._threads import dense_kernel, dense_threads
+from .cholesky import NotPositiveDefinite, factorise
 from .elasticity import internal_force, internal_force_and_tangent
 from .local_solver import NewtonWorkspace, solve_local
 from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
@@ -67,9 +66,9 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
     return x + translation - X
 
 
-def factorise_free(K, free: np.ndarray, order: np.ndarray | None):
+def factorise_free(K, free: np.ndarray, order: np.ndarray | None = None):
     """SuperLU factors of ``K[free][:, free]``, its rows and columns taken in
-    ``order`` (positions in ``free``; :attr:`Model.free_order`) if given.
+    ``order`` (positions in ``free``) if given.
 
     With an order, SuperLU keeps it and works in symmetric mode (diagonal
     pivots unless one is below 0.01 of its column, the tangent being
@@ -83,67 +82,35 @@ def factorise_free(K, free: np.ndarray, order: np.ndarray | None):
                      options={"SymmetricMode": True})
 
 
-def _layered_compliance(K, layer_dofs) -> np.ndarray | None:
-    """Contact block of ``K_ff^-1`` by block elimination of the node layers.
+class _LUFactor:
+    """SuperLU factors of ``K_ff`` with the solve interface of
+    :class:`~fe_contact.cholesky.SupernodalFactor` (for an indefinite tangent
+    or a mesh that is not a tensor grid)."""
 
-    ``K_ff`` is block tridiagonal in the layers (an element spans two), so the
-    Schur complement onto the contact layer follows from the top down,
-    ``S_top = K_top,top`` and ``S_k = K_kk - K_k,k+1 S_k+1^-1 K_k+1,k``, each
-    step a dense Cholesky factorisation, triangular solve and rank update
-    (BLAS 3), and ``G = S_0^-1``.  Returns None if a Schur complement is not
-    positive definite (the sparse LU path handles an indefinite tangent).
-    """
-    K = K.tocsr()
+    def __init__(self, K, free: np.ndarray, order: np.ndarray | None):
+        self.lu = factorise_free(K, free, order)
+        self.order = order
+        self.nnz = self.lu.nnz
 
-    def block(rows, cols):  # Fortran order: LAPACK / BLAS then work in place
-        return K[rows][:, cols].toarray(order="F")
-
-    with dense_kernel(max(d.size for d in layer_dofs)):
-        return _eliminate_layers(block, layer_dofs)
-
-
-def _eliminate_layers(block, layer_dofs) -> np.ndarray | None:
-    # in place throughout: at most three layer-sized dense matrices are alive
-    try:
-        S = block(layer_dofs[-1], layer_dofs[-1])
-        for k in range(len(layer_dofs) - 2, -1, -1):
-            L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
-            del S
-            Y = sla.solve_triangular(
-                L, block(layer_dofs[k + 1], layer_dofs[k]), lower=True, overwrite_b=True, check_finite=False
-            )
-            del L
-            # S = K_kk - Y^T Y, lower triangle (all Cholesky reads)
-            S = blas.dsyrk(-1.0, Y, beta=1.0, c=block(layer_dofs[k], layer_dofs[k]), trans=1, lower=1, overwrite_c=1)
-            del Y
-        L = sla.cholesky(S, lower=True, overwrite_a=True, check_finite=False)
-        del S
-    except np.linalg.LinAlgError:
-        return None
-    G, info = lapack.dpotri(L, lower=1, overwrite_c=1)
-    if info != 0:
-        return None
-    # mirror the lower triangle, a block of rows at a time (no n^2 index arrays)
-    n, b = G.shape[0], 512
-    for i in range(0, n, b):
-        D = G[i:i + b, i:i + b]
-        D[...] = np.tril(D) + np.tril(D, -1).T
-        G[i:i + b, i + b:] = G[i + b:, i:i + b].T
-    return G
+    def solve(self, rhs_free: np.ndarray) -> np.ndarray:
+        if self.order is None:
+            return self.lu.solve(rhs_free)
+        x = np.empty_like(rhs_free)
+        x[self.order] = self.lu.solve(rhs_free[self.order])
+        return x
 
 
 # Cost model of a tangent against a modified-Newton iteration, in seconds on the
-# CI-class CPU (fitted to benchmarks/paper_case.py, planning_step.py and the
-# 5.6e4-dof scaling run to within 2x).  It only decides whether refreshing the
-# tangent pays; being a function of sizes, not of timings, it keeps runs
-# bitwise repeatable.
-# The same rates choose how W is computed.
+# CI-class CPU (fitted to benchmarks/paper_case.py, planning_step.py and
+# scaling.py to within 2x).  It only decides whether refreshing the tangent
+# pays; being a function of sizes, not of timings, it keeps runs bitwise
+# repeatable.
 _S_PER_GAUSS_POINT = 2.6e-7  # internal forces of one Gauss point
 _S_PER_TANGENT_POINT = 3e-6  # tangent stiffness of one Gauss point
-_SPARSE_FLOPS = 1.4e9  # flop/s of one SuperLU solve pair (one thread)
-_SPARSE_W_FLOPS = 6e9  # flop/s of the multi-right-hand-side solves for W (two threads)
-_FACTOR_SOLVES = 60  # a sparse factorisation costs about this many solves
-_DENSE_FLOPS = 4e10  # flop/s of dense LU / layer elimination (BLAS 3, two threads)
+_SPARSE_FLOPS = 1.4e9  # flop/s of one sparse triangular solve pair (one thread)
+_SPARSE_W_FLOPS = 6e9  # flop/s of the SuperLU multi-right-hand-side solves for W (two threads)
+_FACTOR_SOLVES = 60  # a SuperLU factorisation costs about this many solves
+_DENSE_FLOPS = 2e10  # flop/s of the multifrontal factorisation and dense LU (BLAS 3)
 _FRESH_RATE = 0.05  # contraction per iteration with a fresh tangent (measured 0.03-0.05)
 _ITERATION_OVERHEAD_S = 4e-3  # interpreter work of an iteration (local solver loop), planning mesh
 
@@ -170,49 +137,48 @@ def _refresh_pays(tangent: "_Tangent", rate: float, rel_res: float, opts, it: in
 class _Tangent:
     """Factorised free-dof tangent and the flexibility matrix derived from it.
 
-    ``W`` is the contact block of ``K_ff^-1``.  On a layered mesh it comes from
-    dense block elimination of the layers (:func:`_layered_compliance`) when
-    that costs less; otherwise ``K_ff^-1`` is applied to one unit vector per
-    contact dof with the sparse LU factors, on :func:`~fe_contact._threads.dense_threads`
-    threads (SuperLU releases the GIL).
+    ``W`` is the contact block of ``K_ff^-1``.  On a tensor-grid mesh the
+    tangent is factorised by the multifrontal Cholesky of
+    :mod:`fe_contact.cholesky`, which eliminates the contact dofs last, so
+    ``W`` is the inverse of the Schur complement it leaves (no solves with
+    one right-hand side per contact dof).  If the tangent is not positive
+    definite, or the mesh is not a grid, SuperLU factorises it and ``K_ff^-1``
+    is applied to one unit vector per contact dof, on
+    :func:`~fe_contact._threads.dense_threads` threads (SuperLU releases the GIL).
     """
 
     def __init__(self, model: Model, K):
         free = model.free_dofs
-        self.order = model.free_order
-        self.lu = factorise_free(K, free, self.order)
         n_lower = model.n_contacts
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
         self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
         self.n_free = free.size
-
-        G = None
-        self.method = "sparse"
-        layers = model.layer_dofs
-        sparse_flops = 3 * n_lower * 2.0 * self.lu.nnz  # nnz of L + U
-        if layers is not None:
-            m = max(d.size for d in layers)
-            dense_flops = ((len(layers) - 1) * 11.0 / 6.0 + 1.0) * float(m) ** 3
-            if dense_flops / _DENSE_FLOPS < sparse_flops / _SPARSE_W_FLOPS:
-                G = _layered_compliance(K, layers)
-                self.method = "layered" if G is not None else "sparse"
-        if G is None:
-            G = self._sparse_compliance(n_lower)
-        # estimated seconds (see _refresh_pays)
+        m = 3 * n_lower
+        structure = model.factor_structure
         n_points = model.geometry.dvol.size
-        solve_s = 2.0 * self.lu.nnz / _SPARSE_FLOPS
-        if self.method == "layered":
-            w_s = dense_flops / _DENSE_FLOPS
-        else:
-            w_s = sparse_flops / _SPARSE_W_FLOPS
-        local_lu_s = (2.0 / 3.0) * (3.0 * n_lower) ** 3 / _DENSE_FLOPS
-        self.build_s = n_points * _S_PER_TANGENT_POINT + _FACTOR_SOLVES * solve_s + w_s
+        G = None
+        if structure is not None:
+            try:
+                with dense_kernel(structure.max_front):
+                    self.factor = factorise(structure, K.data)
+                    G = self.factor.root_inverse()  # contact dofs in lower_dofs order
+                self.method = "multifrontal"
+                build_s = (structure.flops + m**3) / _DENSE_FLOPS
+            except NotPositiveDefinite:
+                G = None
+        if G is None:
+            self.factor = _LUFactor(K, free, None if structure is None else structure.perm)
+            self.method = "superlu"
+            G = self._sparse_compliance(n_lower)
+            G = 0.5 * (G + G.T)  # exact symmetry
+            build_s = _FACTOR_SOLVES * 2.0 * self.factor.nnz / _SPARSE_FLOPS + m * 2.0 * self.factor.nnz / _SPARSE_W_FLOPS
+        # estimated seconds (see _refresh_pays)
+        solve_s = 4.0 * self.factor.nnz / _SPARSE_FLOPS
+        local_lu_s = (2.0 / 3.0) * float(m) ** 3 / _DENSE_FLOPS
+        self.build_s = n_points * _S_PER_TANGENT_POINT + build_s
         self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_lu_s
-        if self.method == "sparse":
-            G = 0.5 * (G + G.T)  # exact symmetry (the layered G is symmetric by construction)
         # to the local frames, W = (I x T) G (I x T)^T, as two batched products
         T = model.frame
-        m = 3 * n_lower
         W = (T @ G.reshape(n_lower, 3, m)).reshape(n_lower, 3, n_lower, 3) @ T.T
         del G
         W = W.reshape(m, m)
@@ -246,11 +212,7 @@ class _Tangent:
 
     def solve(self, rhs_free: np.ndarray) -> np.ndarray:
         """``K_ff^-1 rhs`` for one right-hand side (n_free,) or several (n_free, k)."""
-        if self.order is None:
-            return self.lu.solve(rhs_free)
-        x = np.empty_like(rhs_free)
-        x[self.order] = self.lu.solve(rhs_free[self.order])
-        return x
+        return self.factor.solve(rhs_free)
 
     def contact_response(self, force_world: np.ndarray) -> np.ndarray:
         """``K_ff^-1 C^T f`` for contact-node forces ``f`` (n_lower, 3), world frame."""

@@ -626,6 +626,49 @@ def test_sparsity_pattern_structure(divisions):
     assert pat.nnz == 9 * n_pairs
 
 
+def reference_pattern(elements, n_nodes):
+    """(indptr, indices, scatter) from np.unique over the 576 dof-pair keys per element."""
+    n_dofs = 3 * n_nodes
+    dofs = reference_dofs(elements)
+    keys = (dofs[:, :, None] * n_dofs + dofs[:, None, :]).ravel()
+    unique_keys, scatter = np.unique(keys, return_inverse=True)
+    indptr = np.r_[0, np.cumsum(np.bincount(unique_keys // n_dofs, minlength=n_dofs))]
+    return indptr, unique_keys % n_dofs, scatter.ravel()
+
+
+def relabelled_mesh_elements(seed: int = 3):
+    """block_mesh (3, 2, 2) with randomly permuted node ids (plus unused ids), shuffled
+    element order, shuffled local node order and one collapsed (repeated-id) element."""
+    m = block_mesh((0.02, 0.02, 0.01), (3, 2, 2))
+    rng = np.random.default_rng(seed)
+    n_nodes = m.n_nodes + 5
+    relabel = rng.permutation(n_nodes)[: m.n_nodes]
+    elements = relabel[m.elements][rng.permutation(m.n_elements)]
+    elements = np.take_along_axis(elements, rng.random(elements.shape).argsort(axis=1), axis=1)
+    elements[0, 7] = elements[0, 2]
+    return elements, n_nodes
+
+
+@pytest.mark.parametrize("case", ["block", "relabelled", "block_4x3x2"])
+def test_sparsity_pattern_matches_unique_reference(case):
+    if case == "block":
+        m = block_mesh((0.02, 0.02, 0.01), (3, 2, 2))
+        elements, n_nodes = m.elements, m.n_nodes
+    elif case == "relabelled":
+        elements, n_nodes = relabelled_mesh_elements()
+    else:
+        m = block_mesh(SIZE, (4, 3, 2))
+        elements, n_nodes = m.elements, m.n_nodes
+    pat = sparsity_pattern(elements, n_nodes)
+    indptr, indices, scatter = reference_pattern(elements, n_nodes)
+    assert pat.indptr.dtype == pat.indices.dtype == np.int32
+    assert pat.scatter.dtype == np.int64
+    np.testing.assert_array_equal(pat.indptr, indptr)
+    np.testing.assert_array_equal(pat.indices, indices)
+    np.testing.assert_array_equal(pat.scatter, scatter)
+    np.testing.assert_array_equal(pat.dofs, reference_dofs(elements))
+
+
 def test_assemble_vector_matches_dense_reference(mesh):
     rng = np.random.default_rng(10)
     fe = rng.standard_normal((mesh.n_elements, 8, 3))
@@ -649,33 +692,20 @@ def test_assembly_rejects_bad_input(mesh, pattern):
         assemble_vector(mesh.elements, np.zeros((mesh.n_elements, 24)), 0)
 
 
-def test_node_layers_follow_the_element_layers():
-    """Layers counted through the elements from the lower face are the z levels
-    of a block; a mesh whose upper face is not the last layer is not layered."""
+def test_nested_dissection_puts_separators_last():
+    """Parts that together permute the nodes, the last being the middle plane
+    across the longest direction (the top separator); None for nodes off a
+    tensor grid."""
     import dataclasses
 
-    from fe_contact.mesh import node_layers
-
-    mesh = block_mesh((0.02, 0.03, 0.01), (2, 3, 4))
-    layers = node_layers(mesh)
-    np.testing.assert_array_equal(layers, np.rint(mesh.nodes[:, 2] / 0.0025).astype(int))
-    assert np.all(layers[mesh.lower] == 0) and np.all(layers[mesh.upper] == 4)
-    middle = np.flatnonzero(layers == 2)
-    assert node_layers(dataclasses.replace(mesh, upper=middle)) is None
-
-
-def test_nested_dissection_order_puts_separators_last():
-    """A permutation of the nodes whose last block is the middle plane across the
-    longest direction (the top separator); None for nodes off a tensor grid."""
-    import dataclasses
-
-    from fe_contact.mesh import nested_dissection_order
+    from fe_contact.mesh import nested_dissection_parts
 
     mesh = block_mesh((0.04, 0.02, 0.01), (8, 4, 2))
-    order = nested_dissection_order(mesh)
-    np.testing.assert_array_equal(np.sort(order), np.arange(mesh.n_nodes))
+    parts = nested_dissection_parts(mesh)
+    np.testing.assert_array_equal(np.sort(np.concatenate(parts)), np.arange(mesh.n_nodes))
     middle = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))  # x = 0 plane, 5 x 3 nodes
-    np.testing.assert_array_equal(np.sort(order[-middle.size:]), middle)
+    np.testing.assert_array_equal(np.sort(parts[-1]), middle)
+    assert max(p.size for p in parts[:-1]) <= 64  # leaf boxes and smaller separators
     nodes = mesh.nodes.copy()
     nodes[0, 0] += 1e-4  # one node off the grid planes
-    assert nested_dissection_order(dataclasses.replace(mesh, nodes=nodes)) is None
+    assert nested_dissection_parts(dataclasses.replace(mesh, nodes=nodes)) is None

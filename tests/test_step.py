@@ -247,30 +247,40 @@ def test_reused_tangent_gives_the_same_steps():
     assert sum(r.tangent_updates for r in rb) < sum(r.newton_iterations for r in rb)
 
 
-def test_layered_flexibility_equals_sparse_solves(monkeypatch):
-    """The contact flexibility by dense elimination of the node layers is the
-    contact block of K_ff^-1 computed column by column with the sparse LU (the
-    plain path), on a deformed, rotated-frame configuration."""
+def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
+    """The contact flexibility as the inverse of the multifrontal Schur complement
+    is the contact block of K_ff^-1 computed column by column with SuperLU (the
+    fallback for indefinite tangents), on a deformed, rotated-frame
+    configuration; whole runs on the two paths agree."""
     import importlib
+
+    from fe_contact.cholesky import NotPositiveDefinite
 
     step_module = importlib.import_module("fe_contact.step")
     from fe_contact.elasticity import internal_force_and_tangent
-    from fe_contact.mesh import node_layers
 
     model = make_model(0.3, 0.05, angle_deg=30.0, divisions=(4, 3, 3))
-    layers = node_layers(model.mesh)
-    np.testing.assert_allclose(model.mesh.nodes[:, 2], layers * model.mesh.size[2] / 3, atol=1e-15)
-    state, _ = run(model, paper_commands(n_push=1))
+    cmds = paper_commands(n_push=2)
+    state, multifrontal_reports = run(model, cmds[:2])
     _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
                                          model.material, model.pattern)
-    monkeypatch.setattr(step_module, "_DENSE_FLOPS", 1e300)  # dense work free: layered
-    layered = step_module._Tangent(model, K)
-    monkeypatch.setattr(step_module, "_DENSE_FLOPS", 1e-300)  # dense work prohibitive: sparse
+    multifrontal = step_module._Tangent(model, K)
+
+    def refuse(structure, data):
+        raise NotPositiveDefinite("refused by the test")
+
+    monkeypatch.setattr(step_module, "factorise", refuse)
     sparse = step_module._Tangent(model, K)
-    assert (layered.method, sparse.method) == ("layered", "sparse")
-    W_layered = layered.W_scaled * layered.w_mean
+    assert (multifrontal.method, sparse.method) == ("multifrontal", "superlu")
+    W_multifrontal = multifrontal.W_scaled * multifrontal.w_mean
     W_sparse = sparse.W_scaled * sparse.w_mean
-    np.testing.assert_allclose(W_layered, W_sparse, rtol=0, atol=1e-10 * np.abs(W_sparse).max())
+    np.testing.assert_allclose(W_multifrontal, W_sparse, rtol=0, atol=1e-10 * np.abs(W_sparse).max())
+    _, sparse_reports = run(model, cmds[:2])
+    check_every_step(sparse_reports)
+    for x, y in zip(multifrontal_reports, sparse_reports):
+        np.testing.assert_allclose(y.displacement, x.displacement, atol=SOLVER_ATOL_REL * np.abs(x.displacement).max())
+        np.testing.assert_allclose(y.reaction_world, x.reaction_world,
+                                   atol=SOLVER_ATOL_REL * np.abs(x.reaction_world).max())
 
 
 def test_paper_uzawa_and_newton_local_solvers_give_the_same_steps():
@@ -310,27 +320,3 @@ def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
     assert refresh_pays(SimpleNamespace(build_s=13.0, iteration_s=1.0), 0.4, 1e-2, opts, it=2)
     assert refresh_pays(costly, 1.2, 1e-2, opts, it=2)  # not contracting
     assert refresh_pays(costly, 0.8, 1e-2, opts, it=2)  # 72 iterations > the 28 left
-
-
-def test_nested_dissection_factorisation_solves_like_minimum_degree():
-    """The fill-reducing node order (ours) and SuperLU's own give the same
-    solutions, and ours fills in less on the paper mesh (measured 2.9e6 vs 4.1e6
-    nonzeros; on an 8 x 8 x 4 block the two are within 2 %)."""
-    from fe_contact.elasticity import internal_force_and_tangent
-    from fe_contact.mesh import nested_dissection_order
-    from fe_contact.step import factorise_free
-
-    model = make_model(0.3, 0.05, divisions=(20, 20, 5))
-    order = nested_dissection_order(model.mesh)
-    np.testing.assert_array_equal(np.sort(order), np.arange(model.mesh.n_nodes))
-    assert model.free_order is not None
-    _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements,
-                                         np.zeros((model.mesh.n_nodes, 3)), model.material, model.pattern)
-    free = model.free_dofs
-    ours = factorise_free(K, free, model.free_order)
-    superlu = factorise_free(K, free, None)
-    b = np.random.default_rng(3).standard_normal(free.size)
-    x = np.empty_like(b)
-    x[model.free_order] = ours.solve(b[model.free_order])
-    np.testing.assert_allclose(x, superlu.solve(b), rtol=0, atol=1e-12 * np.abs(x).max())
-    assert ours.nnz < 0.8 * superlu.nnz
