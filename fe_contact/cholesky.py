@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 from scipy.linalg import blas, lapack
 
 __all__ = ["SupernodalStructure", "SupernodalFactor", "NotPositiveDefinite", "supernodal_structure", "factorise"]
@@ -59,6 +58,11 @@ class SupernodalStructure:
         Part receiving each part's update (-1 for the last part).
     relative : tuple of ndarray of int64
         Per part, the positions of its boundary inside its parent's front.
+    runs : tuple of ndarray of int64
+        Per part, ``relative`` cut into runs of consecutive positions, one row
+        ``(first position in the part's update, first position in the parent's
+        front, length)`` each: the update is added to its parent a run of
+        columns at a time, with slices instead of a two-dimensional gather.
     source, target : tuple of ndarray of int64
         Per part, the positions in the matrix data array (CSR of the full
         pattern) of the entries the part assembles, and their flat positions
@@ -77,6 +81,7 @@ class SupernodalStructure:
     boundary: tuple
     parent: np.ndarray
     relative: tuple
+    runs: tuple
     source: tuple
     target: tuple
     nnz: int
@@ -171,8 +176,13 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
         for s in range(n_parts)
     )
     free_position = np.searchsorted(free, order)
+    runs = []
+    for rel in relative:
+        first = np.flatnonzero(np.diff(rel, prepend=-2) != 1)
+        runs.append(np.stack([first, rel[first], np.diff(first, append=rel.size)], axis=1))
     return SupernodalStructure(
         perm=free_position, starts=starts, boundary=tuple(boundary), parent=parent, relative=relative,
+        runs=tuple(runs),
         source=tuple(source), target=tuple(target), nnz=int(nnz), max_front=max(f.size for f in fronts),
         flops=float(flops),
     )
@@ -194,23 +204,24 @@ class SupernodalFactor:
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``K_ff^-1 rhs`` for one right-hand side (n_free,) or several (n_free, k)."""
         st = self.structure
-        x = np.array(rhs, dtype=float)[st.perm]
+        rhs = np.asarray(rhs, dtype=float)
+        x = rhs[st.perm].reshape(rhs.shape[0], -1)
         starts = st.starts
-        for s in range(st.n_parts):
+        for s in range(st.n_parts):  # forward: L y = b
             a, b = starts[s], starts[s + 1]
-            y = sla.solve_triangular(self._diagonal[s], x[a:b], lower=True, check_finite=False)
+            y = blas.dtrsm(1.0, self._diagonal[s], x[a:b], lower=1)
             x[a:b] = y
             if st.boundary[s].size:
                 x[st.boundary[s]] -= self._below[s] @ y
-        for s in range(st.n_parts - 1, -1, -1):
+        for s in range(st.n_parts - 1, -1, -1):  # backward: L^T x = y
             a, b = starts[s], starts[s + 1]
             y = x[a:b]
             if st.boundary[s].size:
                 y = y - self._below[s].T @ x[st.boundary[s]]
-            x[a:b] = sla.solve_triangular(self._diagonal[s], y, lower=True, trans="T", check_finite=False)
+            x[a:b] = blas.dtrsm(1.0, self._diagonal[s], y, lower=1, trans_a=1)
         out = np.empty_like(x)
         out[st.perm] = x
-        return out
+        return out.reshape(rhs.shape)
 
     def root_inverse(self) -> np.ndarray:
         """``S^-1``, the contact block of ``K_ff^-1`` (n_root, n_root), symmetric,
@@ -257,8 +268,10 @@ def factorise(structure: SupernodalStructure, data: np.ndarray) -> SupernodalFac
         F = np.zeros((p + q, p + q), order="F")
         F.ravel(order="F")[st.target[s]] = data[st.source[s]]
         for c in pending.pop(s, ()):
-            rel = st.relative[c]
-            F[np.ix_(rel, rel)] += updates.pop(c)
+            # extend-add of the lower triangle (the upper one of an update is zero)
+            rel, U = st.relative[c], updates.pop(c)
+            for u0, f0, length in st.runs[c]:
+                F[rel[u0:], f0:f0 + length] += U[u0:, u0:u0 + length]
         # in place where the pivot block is the whole front (the contact part)
         L, info = lapack.dpotrf(F[:p, :p], lower=1, clean=1, overwrite_a=1)
         if info != 0:
