@@ -177,11 +177,14 @@ class _Tangent:
         local_lu_s = (2.0 / 3.0) * float(m) ** 3 / _DENSE_FLOPS
         self.build_s = n_points * _S_PER_TANGENT_POINT + build_s
         self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_lu_s
-        # to the local frames, W = (I x T) G (I x T)^T, as two batched products
+        # to the local frames, W = (I x T) G (I x T)^T, in place a band of rows at
+        # a time (two batched products; no second matrix of W's size)
         T = model.frame
-        W = (T @ G.reshape(n_lower, 3, m)).reshape(n_lower, 3, n_lower, 3) @ T.T
-        del G
-        W = W.reshape(m, m)
+        W = G
+        blocks = W.reshape(n_lower, 3, n_lower, 3)
+        for i in range(0, n_lower, 256):
+            band = blocks[i:i + 256]
+            band[...] = (T @ band.reshape(-1, 3, m)).reshape(band.shape) @ T.T
         # Divided by its mean diagonal compliance, u = W r + q has force units, so
         # the natural-map residual (r - proj(r - modified(u))) is homogeneous; the
         # contact law is invariant under this scaling of u.  Kept scaled, once.
@@ -342,6 +345,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None) 
         prev_res = rel_res
         t_phase = time.perf_counter()
         if need_tangent:
+            tangent = workspace = None  # the old factors go before the new ones come
             try:
                 tangent = _Tangent(model, K)
             except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
