@@ -54,7 +54,9 @@ def main(argv=None) -> dict:
         except subprocess.TimeoutExpired:
             row = {"n": n, "timeout_s": args.timeout}
         except subprocess.CalledProcessError as exc:
-            row = {"n": n, "error": exc.stderr.strip().splitlines()[-1] if exc.stderr else str(exc)}
+            reason = "killed (SIGKILL: out of memory?)" if exc.returncode == -9 else f"exit status {exc.returncode}"
+            last = exc.stderr.strip().splitlines()[-1] if exc.stderr and exc.stderr.strip() else ""
+            row = {"n": n, "error": f"{reason} {last}".strip()}
         rows.append(row)
         if "wall_s" in row:
             print(f"n={n:>3}  dofs={row['dofs']:>7}  contacts={row['contacts']:>5}  "

@@ -23,6 +23,7 @@ Methods
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,8 @@ _GROWTH = 2.0  # residual growth that halves the Uzawa step
 _BLOWUP = 1e6  # |r| beyond this many force scales is divergence
 _STALL_CHECKS = 5  # checks (10 iterations each) ...
 _STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
-_CHORD_CONTRACTION = 0.5  # |F| reduction that accepts a step with an old Newton matrix
+_KRYLOV_RTOL = 1e-2  # relative residual of the linearised equations in a Krylov step
+_KRYLOV_MAX_ITER = 20  # GMRES iterations before a new LU is cheaper (n^2 each against n^3)
 
 
 @dataclass(frozen=True)
@@ -80,14 +82,15 @@ class NewtonWorkspace:
 
     A load step solves many local problems with the same ``W`` and a slowly
     changing ``q``.  The workspace keeps the LU factors of the last Newton
-    matrix, which usually still contract in the next call
-    (chord steps: a triangular solve instead of a dense LU).  Pass it with the
-    same ``W`` object, unmodified; another ``W`` or other coefficients reset it.
+    matrix, which precondition GMRES on the next Newton matrices (Krylov
+    steps: a few products instead of a dense LU).  Pass it with the same ``W``
+    object, unmodified; another ``W`` or other coefficients reset it.
 
     Attributes
     ----------
-    factorisations, chord_steps : int
-        Dense LU factorisations done and chord steps accepted so far.
+    factorisations, krylov_steps : int
+        Newton steps taken with a new dense LU factorisation, and with GMRES
+        preconditioned by the kept one, so far.
     """
 
     def __init__(self) -> None:
@@ -95,7 +98,7 @@ class NewtonWorkspace:
         self._d = None
         self.lu = None
         self.factorisations = 0
-        self.chord_steps = 0
+        self.krylov_steps = 0
 
     def copy(self) -> "NewtonWorkspace":
         """An independent workspace starting from this one's state (arrays shared, never modified)."""
@@ -210,7 +213,7 @@ def solve_local(
         proximal regularisation.
     workspace : NewtonWorkspace, optional
         Newton only: reuse the factorised Newton matrix of earlier calls with
-        the same ``W`` object (chord steps).
+        the same ``W`` object as a GMRES preconditioner (Krylov steps).
 
     Returns
     -------
@@ -292,7 +295,10 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
 
 
 def _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
-    """AC function ``F(s)`` and (if ``jacobian``) one element of its generalised Jacobian.
+    """AC function ``F(s)`` and (if ``jacobian``) one element of its generalised
+    Jacobian, ``blockdiag(P) + blockdiag(Q) D W D``, as its 3x3 blocks ``P, Q``
+    (n, 3, 3) (:func:`_newton_matrix` forms it, :func:`_jacobian_product`
+    applies it).
 
     Isotropic cone with coefficients ``mu`` (1 or 0) on the scaled variables
     of the problem ``u_s = D W D s + q_s``, ``D = diag(d)`` (``D W D`` is never
@@ -315,7 +321,7 @@ def _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
     if not jacobian:
         return np.where(fixed, s, F)
 
-    # The Jacobian is blockdiag(P) + Q W with 3x3 blocks P, Q per contact:
+    # The Jacobian is blockdiag(P) + Q W_s with 3x3 blocks P, Q per contact:
     #   normal row, active:   rho * W_n            (P = 0,   Q = rho e_n^T)
     #   normal row, inactive: e_n                  (P = e_n, Q = 0)
     #   tangent rows, stick:  rho * W_t            (P = 0,   Q = rho [0 I])
@@ -340,14 +346,60 @@ def _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
     P = np.where(fixed[:, :, None], np.eye(3)[None], P)
     Q = np.where(fixed[:, :, None], 0.0, Q)
     F = np.where(fixed, s, F)
+    return F, P, Q
 
+
+def _newton_matrix(P, Q, W, d) -> np.ndarray:
+    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n)."""
+    n = P.shape[0]
     m = 3 * n
     J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, m)).reshape(m, m)
     J *= d
     blocks = J.reshape(n, 3, n, 3)
     idx = np.arange(n)
     blocks[idx, :, idx, :] += P
-    return F, J
+    return J
+
+
+def _jacobian_product(P, Q, W, d, v) -> np.ndarray:
+    """``(blockdiag(P) + blockdiag(Q) D W D) v`` without forming the matrix (3n,)."""
+    n = P.shape[0]
+    Wv = (d * (W @ (d * v))).reshape(n, 3)
+    return (np.einsum("cij,cj->ci", P, v.reshape(n, 3)) + np.einsum("cij,cj->ci", Q, Wv)).ravel()
+
+
+def _gmres(apply_A, b, apply_M, rtol: float, max_iter: int) -> np.ndarray | None:
+    """``x`` with ``|A x - b| <= rtol |b|`` by GMRES right-preconditioned with
+    ``M^-1`` (``apply_M``), from ``x = 0``; None if ``max_iter`` iterations do
+    not get there.  Arnoldi by classical Gram-Schmidt applied twice (two
+    matrix products per iteration instead of a loop over the basis)."""
+    beta = float(np.linalg.norm(b))
+    if beta == 0.0:
+        return np.zeros_like(b)
+    V = np.zeros((max_iter + 1, b.size))
+    H = np.zeros((max_iter + 1, max_iter))
+    V[0] = b / beta
+    rhs = np.zeros(max_iter + 1)
+    rhs[0] = beta
+    for j in range(max_iter):
+        w = apply_A(apply_M(V[j]))
+        h = V[:j + 1] @ w
+        w -= h @ V[:j + 1]
+        h2 = V[:j + 1] @ w
+        w -= h2 @ V[:j + 1]
+        H[:j + 1, j] = h + h2
+        H[j + 1, j] = np.linalg.norm(w)
+        y, *_ = np.linalg.lstsq(H[:j + 2, :j + 1], rhs[:j + 2], rcond=None)
+        ratio = float(np.linalg.norm(H[:j + 2, :j + 1] @ y - rhs[:j + 2])) / beta
+        if ratio <= rtol:
+            return apply_M(y @ V[:j + 1])
+        if H[j + 1, j] <= 1e-14 * beta:  # invariant subspace without the solution
+            return None
+        # give up early when the rate so far would not reach rtol in max_iter
+        if j >= 2 and (ratio >= 1.0 or (j + 1) * math.log(rtol) / math.log(ratio) > max_iter):
+            return None
+        V[j + 1] = w / H[j + 1, j]
+    return None
 
 
 def _well_conditioned(A) -> bool:
@@ -429,39 +481,44 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
             if it >= max_iter:
                 break
             merits.append(psi)
-            accepted = False
+            step = None
             if lu is not None:
-                # Chord step: the generalised Jacobian is piecewise constant in
-                # the stick / slip / open pattern and varies slowly within it, so
-                # an older factorisation usually still contracts; a triangular
-                # solve replaces the dense LU.  Kept only if |F| at least halves.
-                s_try = s + _lu_step(lu, -F.ravel()).reshape(n, 3)
-                F_try = _alart_curnier(s_try, Wp, dp, qp, mu, rho, fixed, jacobian=False)
-                psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
-                accepted = bool(psi_try <= _CHORD_CONTRACTION**2 * psi)
-                if accepted and keep is not None:
-                    keep.chord_steps += 1
-            if not accepted:
-                _, J = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
-                lu = _factorise(J)
+                # Krylov step: GMRES on the generalised Jacobian at s, applied
+                # without forming it (O(n^2) a product), preconditioned by the
+                # LU factors of an older Newton matrix.  The Jacobian is
+                # piecewise constant in the stick / slip / open pattern and
+                # varies slowly within it, so the old factors usually make GMRES
+                # converge in a few products, where a new LU costs O(n^3).
+                _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
+                step = _gmres(lambda v: _jacobian_product(P, Q, Wp, dp, v), -F.ravel(),
+                              lambda v: _lu_step(lu, v), _KRYLOV_RTOL, _KRYLOV_MAX_ITER)
+                if step is not None:
+                    # rows that are e_i (open contacts, pinned components) are
+                    # solved exactly, so that an open contact's force is exactly 0
+                    exact = np.all(Q == 0.0, axis=2) & np.all(P == np.eye(3)[None], axis=2)
+                    step = np.where(exact.ravel(), -F.ravel(), step)
+                    if keep is not None:
+                        keep.krylov_steps += 1
+            if step is None:
+                _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
+                lu = _factorise(_newton_matrix(P, Q, Wp, dp))
                 if keep is not None:
                     keep.lu = lu
                     keep.factorisations += 1
                 if lu is not None:
                     step = _lu_step(lu, -F.ravel())
-                else:
-                    _, J = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)  # lu_factor overwrote J
-                    step = sla.lstsq(J, -F.ravel(), check_finite=False)[0]
-                step = step.reshape(n, 3)
-                ref = max(merits[-_NONMONOTONE_MEMORY:])
-                alpha = 1.0
-                while True:
-                    s_try = s + alpha * step
-                    F_try = _alart_curnier(s_try, Wp, dp, qp, mu, rho, fixed, jacobian=False)
-                    psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
-                    if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
-                        break
-                    alpha *= 0.5
+                else:  # lu_factor overwrote the matrix
+                    step = sla.lstsq(_newton_matrix(P, Q, Wp, dp), -F.ravel(), check_finite=False)[0]
+            step = step.reshape(n, 3)
+            ref = max(merits[-_NONMONOTONE_MEMORY:])
+            alpha = 1.0
+            while True:
+                s_try = s + alpha * step
+                F_try = _alart_curnier(s_try, Wp, dp, qp, mu, rho, fixed, jacobian=False)
+                psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
+                if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
+                    break
+                alpha *= 0.5
             s, F, psi = s_try, F_try, psi_try
             it += 1
             residual = true_residual(s)

@@ -110,7 +110,8 @@ _S_PER_TANGENT_POINT = 3e-6  # tangent stiffness of one Gauss point
 _SPARSE_FLOPS = 1.4e9  # flop/s of one sparse triangular solve pair (one thread)
 _SPARSE_W_FLOPS = 6e9  # flop/s of the SuperLU multi-right-hand-side solves for W (two threads)
 _FACTOR_SOLVES = 60  # a SuperLU factorisation costs about this many solves
-_DENSE_FLOPS = 2e10  # flop/s of the multifrontal factorisation and dense LU (BLAS 3)
+_DENSE_FLOPS = 2e10  # flop/s of the multifrontal factorisation (BLAS 3)
+_LOCAL_PRODUCTS = 30  # products with W (GMRES on old LU factors) in the local solve of an iteration
 _FRESH_RATE = 0.05  # contraction per iteration with a fresh tangent (measured 0.03-0.05)
 _ITERATION_OVERHEAD_S = 4e-3  # interpreter work of an iteration (local solver loop), planning mesh
 
@@ -174,9 +175,9 @@ class _Tangent:
             build_s = _FACTOR_SOLVES * 2.0 * self.factor.nnz / _SPARSE_FLOPS + m * 2.0 * self.factor.nnz / _SPARSE_W_FLOPS
         # estimated seconds (see _refresh_pays)
         solve_s = 4.0 * self.factor.nnz / _SPARSE_FLOPS
-        local_lu_s = (2.0 / 3.0) * float(m) ** 3 / _DENSE_FLOPS
+        local_s = _LOCAL_PRODUCTS * 2.0 * float(m) ** 2 / _SPARSE_FLOPS
         self.build_s = n_points * _S_PER_TANGENT_POINT + build_s
-        self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_lu_s
+        self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_s
         # to the local frames, W = (I x T) G (I x T)^T, in place a band of rows at
         # a time (two batched products; no second matrix of W's size)
         T = model.frame

@@ -317,10 +317,10 @@ def test_warm_start(method):
     assert np.linalg.norm(other.r - cold.r) <= AGREE_RTOL * np.linalg.norm(cold.r)
 
 
-def test_workspace_chord_steps_reach_the_same_solutions():
+def test_workspace_krylov_steps_reach_the_same_solutions():
     """A sequence of nearby problems on one W (what a load step produces): with the
-    workspace (chord steps on an older factorisation) the solutions equal the
-    plain Newton ones, and fewer LU factorisations are done than Newton steps."""
+    workspace (GMRES preconditioned by an older factorisation) the solutions equal
+    the plain Newton ones, and fewer LU factorisations are done than Newton steps."""
     W, q, mx, my = random_problem(6, nc=30, c=1.0)  # c = 1: FE-like, SPD
     drift = np.random.default_rng(7).standard_normal(q.shape)
     workspace = NewtonWorkspace()
@@ -336,8 +336,8 @@ def test_workspace_chord_steps_reach_the_same_solutions():
         assert np.linalg.norm(fast.r - plain.r) <= AGREE_RTOL * np.linalg.norm(plain.r)
         plain_r, fast_r = plain.r, fast.r
         steps += fast.iterations
-    assert workspace.chord_steps > 0
-    assert workspace.factorisations + workspace.chord_steps == steps
+    assert workspace.krylov_steps > 0
+    assert workspace.factorisations + workspace.krylov_steps == steps
     assert workspace.factorisations < steps
     # another W resets the kept factorisation instead of misusing it
     W2 = W + np.eye(W.shape[0])
