@@ -152,6 +152,7 @@ def simulate(
     """
     t0 = time.perf_counter()
     model = model or scenario.model()
+    own_state = state is None  # then every state is ours and a refresh may free the previous tangent
     state = state or initial_state(model)
     commands = tuple(scenario.commands if commands is None else commands)
     for i, c in enumerate(commands):
@@ -179,7 +180,8 @@ def simulate(
                 last_local[:] = [(W, q, sol)]
 
             try:
-                state, rep = step(model, state, cmd, local_problem_hook=keep_last if export_fclib is not None else None)
+                state, rep = step(model, state, cmd, local_problem_hook=keep_last if export_fclib is not None else None,
+                                  consume=own_state or i > 1)
             except (ValueError, ArithmeticError, RuntimeError) as exc:
                 # a numerical breakdown the step did not turn into a status (singular
                 # factorisation, ill-conditioned flexibility matrix) is still a failure

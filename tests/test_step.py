@@ -320,3 +320,28 @@ def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
     assert refresh_pays(SimpleNamespace(build_s=13.0, iteration_s=1.0), 0.4, 1e-2, opts, it=2)
     assert refresh_pays(costly, 1.2, 1e-2, opts, it=2)  # not contracting
     assert refresh_pays(costly, 0.8, 1e-2, opts, it=2)  # 72 iterations > the 28 left
+
+
+def test_consumed_state_gives_up_its_tangent_at_a_refresh_and_nothing_else(monkeypatch):
+    """step(..., consume=True) frees the input state's cached tangent when it
+    refreshes (one factorised tangent alive instead of two); the step itself is
+    bitwise the same as without."""
+    import importlib
+
+    # refresh whenever the contraction is slower than 1e-6 per iteration
+    monkeypatch.setattr(importlib.import_module("fe_contact.step"), "_refresh_pays", lambda *args: True)
+    model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
+    s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+    kept, rep_kept = step(model, s1, push(45.0))
+    assert rep_kept.tangent_updates > 0  # the tiny refresh_ratio makes the step refresh
+    assert s1.tangent is not None
+    consumed, rep_consumed = step(model, s1, push(45.0), consume=True)
+    assert s1.tangent is None
+    np.testing.assert_array_equal(consumed.displacement, kept.displacement)
+    np.testing.assert_array_equal(consumed.reaction, kept.reaction)
+    assert rep_consumed.tangent_updates == rep_kept.tangent_updates
+    # a state without its cache still steps, from a tangent at its own configuration
+    again, rep_again = step(model, s1, push(45.0))
+    assert rep_again.converged
+    np.testing.assert_allclose(again.displacement, kept.displacement, rtol=0,
+                               atol=SOLVER_ATOL_REL * np.abs(kept.displacement).max())
