@@ -46,6 +46,7 @@ _STALL_CHECKS = 5  # checks (10 iterations each) ...
 _STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
 _KRYLOV_RTOL = 1e-2  # relative residual of the linearised equations in a Krylov step
 _KRYLOV_MAX_ITER = 20  # GMRES iterations before a new LU is cheaper (n^2 each against n^3)
+_KRYLOV_MIN_ORDER = 1000  # below, an LU costs less than the interpreter work of GMRES (planning mesh: 243)
 
 
 @dataclass(frozen=True)
@@ -482,7 +483,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 break
             merits.append(psi)
             step = None
-            if lu is not None:
+            if lu is not None and 3 * n >= _KRYLOV_MIN_ORDER:
                 # Krylov step: GMRES on the generalised Jacobian at s, applied
                 # without forming it (O(n^2) a product), preconditioned by the
                 # LU factors of an older Newton matrix.  The Jacobian is

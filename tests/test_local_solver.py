@@ -321,7 +321,7 @@ def test_workspace_krylov_steps_reach_the_same_solutions():
     """A sequence of nearby problems on one W (what a load step produces): with the
     workspace (GMRES preconditioned by an older factorisation) the solutions equal
     the plain Newton ones, and fewer LU factorisations are done than Newton steps."""
-    W, q, mx, my = random_problem(6, nc=30, c=1.0)  # c = 1: FE-like, SPD
+    W, q, mx, my = random_problem(6, nc=340, c=1.0)  # c = 1: FE-like, SPD; order 1020 >= _KRYLOV_MIN_ORDER
     drift = np.random.default_rng(7).standard_normal(q.shape)
     workspace = NewtonWorkspace()
     plain_r = fast_r = None
