@@ -1,8 +1,9 @@
 """BLAS threads for the large dense kernels of a step.
 
-The flexibility matrix by layer elimination and the local Newton LU are dense
-BLAS-3 work that two threads run about 1.8x faster (measured: LU of the paper
-case's 1323 x 1323 Newton matrix, 62 -> 33 ms); everything else in a step is
+The multifrontal factorisation of a large tangent (with the flexibility
+matrix) and the local Newton LU are dense BLAS-3 work that two threads run
+about 1.8x faster (measured: LU of the paper case's 1323 x 1323 Newton
+matrix, 62 -> 33 ms); everything else in a step is
 small dense or sparse work that threads slow down, so BLAS is best left at one
 thread (the Makefile exports ``OPENBLAS_NUM_THREADS=1``) and raised only around
 these kernels.
