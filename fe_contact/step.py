@@ -34,6 +34,7 @@ from .model import Command, IterLog, Model, NodeStatus, State, Status, StepRepor
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
 
 _THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
+_RHS_BLOCK_ENTRIES = 25_000_000  # right-hand sides x free dofs solved at once for W on SuperLU (200 MB)
 SEPARATION_FORCE = 1e-9
 """Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
 SLIP_DISPLACEMENT = 1e-9
@@ -202,12 +203,15 @@ class _Tangent:
             E[self.contact_index[cols], np.arange(cols.size)] = 1.0
             return self.solve(E)[self.contact_index]
 
+        m = 3 * n_lower
+        # right-hand sides a block at a time: all at once is n_free x m
+        # (15 GB at 2.3e5 dofs)
+        blocks = np.array_split(np.arange(m), max(1, -(-m * self.n_free // _RHS_BLOCK_ENTRIES)))
         threads = dense_threads()
-        if threads == 1 or 3 * n_lower * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
-            return contact_block(np.arange(3 * n_lower))
+        if threads == 1 or m * self.n_free < _THREADED_WORK:  # small: threads cost more than they save
+            return np.hstack([contact_block(cols) for cols in blocks])
         with ThreadPoolExecutor(threads) as pool:
-            parts = pool.map(contact_block, np.array_split(np.arange(3 * n_lower), threads))
-            return np.hstack(list(parts))
+            return np.hstack(list(pool.map(contact_block, blocks)))
 
     def with_workspace(self, workspace: NewtonWorkspace) -> "_Tangent":
         other = copy.copy(self)

@@ -270,6 +270,7 @@ def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
         raise NotPositiveDefinite("refused by the test")
 
     monkeypatch.setattr(step_module, "factorise", refuse)
+    monkeypatch.setattr(step_module, "_RHS_BLOCK_ENTRIES", 5000)  # W in blocks of a few columns
     sparse = step_module._Tangent(model, K)
     assert (multifrontal.method, sparse.method) == ("multifrontal", "superlu")
     W_multifrontal = multifrontal.W_scaled * multifrontal.w_mean
