@@ -449,7 +449,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
     # Newton matrix singular; proximal-point regularisation (solve
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
     # same fixed point.  An SPD W needs none.
-    eta = 0.0 if assume_spd or _well_conditioned(W * d[:, None] * d[None, :]) else 1e-2 * w_ref
+    Ws = None if assume_spd else W * d[:, None] * d[None, :]  # formed only to test and regularise
+    eta = 0.0 if assume_spd or _well_conditioned(Ws) else 1e-2 * w_ref
     # the factorised Newton matrix outlives the call only for an unregularised W
     keep = workspace if workspace is not None and eta == 0.0 else None
     if keep is not None:
@@ -471,7 +472,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
     it = 0
     while residual > tol and it < max_iter:
         # the operator and its scaling: D W D itself, regularised, or W and d
-        Wp, dp = (W * d[:, None] * d[None, :] + eta * np.eye(3 * n), np.ones_like(d)) if eta > 0 else (W, d)
+        Wp, dp = (Ws + eta * np.eye(3 * n), np.ones_like(d)) if eta > 0 else (W, d)
         qp = qs - eta * s
         F = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed, jacobian=False)
         psi = 0.5 * float(F.ravel() @ F.ravel())
@@ -483,6 +484,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 break
             merits.append(psi)
             step = None
+            _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
             if lu is not None and 3 * n >= _KRYLOV_MIN_ORDER:
                 # Krylov step: GMRES on the generalised Jacobian at s, applied
                 # without forming it (O(n^2) a product), preconditioned by the
@@ -490,7 +492,6 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 # piecewise constant in the stick / slip / open pattern and
                 # varies slowly within it, so the old factors usually make GMRES
                 # converge in a few products, where a new LU costs O(n^3).
-                _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
                 step = _gmres(lambda v: _jacobian_product(P, Q, Wp, dp, v), -F.ravel(),
                               lambda v: _lu_step(lu, v), _KRYLOV_RTOL, _KRYLOV_MAX_ITER)
                 if step is not None:
@@ -501,7 +502,6 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                     if keep is not None:
                         keep.krylov_steps += 1
             if step is None:
-                _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
                 lu = _factorise(_newton_matrix(P, Q, Wp, dp))
                 if keep is not None:
                     keep.lu = lu
