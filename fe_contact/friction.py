@@ -127,7 +127,7 @@ def _modified(a, mx, my) -> np.ndarray:
     return out
 
 
-def _boundary_offset(tn, tx, ty, mx, my) -> tuple[np.ndarray, np.ndarray]:
+def _boundary_offset(tn, tt, mu) -> tuple[np.ndarray, np.ndarray]:
     """Root of the boundary-case equation of the projection: ``(t, delta)``.
 
     On the cone boundary the projection is ``r = (t, tau_tx mu_x^2 t / d_x,
@@ -143,29 +143,30 @@ def _boundary_offset(tn, tx, ty, mx, my) -> tuple[np.ndarray, np.ndarray]:
     <= 1 at ``lo = max_i(|e_i| - c_i)`` (one term alone reaches 1 there), so
     Newton on ``h = 1`` from ``lo`` increases monotonically to the root, with
     no overshoot to guard against.  Measured: at most 8 passes for
-    ``mu_x / mu_y = 6``, 13 for 1e4.  Inputs are normalised (``max |tau_i| = 1``).
+    ``mu_x / mu_y = 6``, 13 for 1e4.  Inputs are normalised (``max |tau_i| =
+    1``); ``tt`` and ``mu`` (k, 2) hold ``tau_tx, tau_ty`` and ``mu_x, mu_y``.
+    Call under ``np.errstate`` ignoring division, overflow and invalid values.
     """
-    m2x, m2y = mx * mx, my * my
-    ex, ey = tx * mx / (1.0 + m2x), ty * my / (1.0 + m2y)
-    cx, cy = m2x * tn / (1.0 + m2x), m2y * tn / (1.0 + m2y)
-    delta = np.maximum(np.maximum(-tn, 0.0), np.maximum(np.abs(ex) - cx, np.abs(ey) - cy))
+    m2 = mu * mu
+    inv = 1.0 / (1.0 + m2)
+    e = (tt * mu * inv).T  # (2, k)
+    c = (m2 * tn[:, None] * inv).T
+    delta = np.maximum(np.maximum(-tn, 0.0), (np.abs(e) - c).max(axis=0))
     # a zero e_i contributes nothing, whatever c_i; c_i = 1 keeps its term finite
-    cx = np.where(ex != 0.0, cx, 1.0)
-    cy = np.where(ey != 0.0, cy, 1.0)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for _ in range(_ROOT_MAX_ITER):
-            ix, iy = 1.0 / (delta + cx), 1.0 / (delta + cy)
-            gx2, gy2 = (ex * ix) ** 2, (ey * iy) ** 2
-            h = 1.0 / np.sqrt(gx2 + gy2)
-            # Newton step (1 - h) / h' with h' = h^3 sum_i g_i^2 / (delta + c_i)
-            step = (1.0 - h) / (h**3 * (gx2 * ix + gy2 * iy))
-            # rounding can make the last steps <= 0 or non-finite: the root is reached
-            step = np.where(step > 0.0, step, 0.0)  # (NaN > 0 is False)
-            new = delta + step
-            converged = np.all(step <= 4e-16 * new)
-            delta = new
-            if converged:
-                break
+    c[e == 0.0] = 1.0
+    for _ in range(_ROOT_MAX_ITER):
+        i = 1.0 / (delta + c)
+        g2 = (e * i) ** 2
+        phi = g2.sum(axis=0)
+        # Newton step (1 - h) / h' with h = phi^(-1/2), h' = h^3 sum_i g_i^2 / (delta + c_i)
+        step = phi * (np.sqrt(phi) - 1.0) / (g2 * i).sum(axis=0)
+        # rounding can make the last steps <= 0 or non-finite: the root is reached
+        step = np.fmax(step, 0.0)  # (fmax(NaN, 0) is 0)
+        new = delta + step
+        converged = np.all(step <= 4e-16 * new)
+        delta = new
+        if converged:
+            break
     return tn + delta, delta
 
 
@@ -196,34 +197,38 @@ def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
 
 def _project(a, mx, my) -> np.ndarray:
     """:func:`project_elliptic_cone` for checked input: ``a`` finite, shape (n, 3);
-    ``mx``, ``my`` finite, >= 0, shape (n,).  The solvers' inner loops call this."""
-    r = np.zeros_like(a)
-    scale = np.max(np.abs(a), axis=1)
-    nz = scale > 0
-    s = np.where(nz, scale, 1.0)
-    tn, tx, ty = a[:, 0] / s, a[:, 1] / s, a[:, 2] / s
-    sup = np.hypot(mx * tx, my * ty)  # ||M tau_t||
+    ``mx``, ``my`` finite, >= 0, shape (n,).  The solvers' inner loops call this:
+    for the tens of contacts of a planning mesh its cost is the number of numpy
+    calls, kept low here (whole-array masks, both tangent axes in one array)."""
+    scale = np.abs(a).max(axis=1)
+    s = np.where(scale > 0.0, scale, 1.0)[:, None]
+    t = a / s  # normalised, max |t_i| = 1 (a zero row stays 0 and is polar)
+    tn = t[:, 0]
+    mu = np.column_stack((mx, my))
+    sup = np.hypot(mu[:, 0] * t[:, 1], mu[:, 1] * t[:, 2])  # ||M tau_t||
     polar = tn + sup <= 0.0
-    # ||M^-1 tau_t||; a component along an axis without friction puts tau outside
-    with np.errstate(over="ignore"):  # inf for a tiny mu is the right answer: outside
-        cx = np.where(mx > 0, tx / np.where(mx > 0, mx, 1.0), np.where(tx == 0.0, 0.0, np.inf))
-        cy = np.where(my > 0, ty / np.where(my > 0, my, 1.0), np.where(ty == 0.0, 0.0, np.inf))
-    inside = (np.hypot(cx, cy) <= tn) & ~polar
-    rest = nz & ~polar & ~inside
-    # tau outside both cones but with no friction-weighted tangential part: the
-    # projection is onto the axis (tau_n > 0 here since tau is not polar).
-    axis = rest & (sup == 0.0)
-    boundary = rest & ~axis
-    r[inside] = a[inside]
-    r[axis, 0] = a[axis, 0]
-    if np.any(boundary):
-        b = boundary
-        t, delta = _boundary_offset(tn[b], tx[b], ty[b], mx[b], my[b])
-        r[b, 0] = t * s[b]
-        for k, m in ((1, mx[b]), (2, my[b])):
-            d = delta + m * m * t
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # ||M^-1 tau_t||; a component along an axis without friction puts tau
+        # outside (inf), and inf for a tiny mu is the right answer too
+        c = np.where(t[:, 1:] == 0.0, 0.0, t[:, 1:] / mu)
+        # (only the zero row is both inside and polar; its projection is 0 either way)
+        inside = np.hypot(c[:, 0], c[:, 1]) <= tn
+        r = np.where(inside[:, None], a, 0.0)
+        rest = ~(polar | inside)
+        # tau outside both cones with no friction-weighted tangential part: the
+        # projection is onto the axis (tau_n > 0 here since tau is not polar)
+        axis = rest & (sup == 0.0)
+        if np.any(axis):
+            r[axis, 0] = a[axis, 0]
+        b = np.flatnonzero(rest & (sup > 0.0))
+        if b.size:
+            m2 = mu[b] ** 2
+            t_b, delta = _boundary_offset(tn[b], t[b, 1:], mu[b])
+            d = delta[:, None] + m2 * t_b[:, None]
             # d == 0 only if delta and mu^2 t both underflow: |r_tk| is below rounding
-            r[b, k] = np.where(d > 0, a[b, k] * (m * m * t / np.where(d > 0, d, 1.0)), 0.0)
+            ratio = np.where(d > 0.0, m2 * t_b[:, None] / d, 0.0)
+            r[b, 0] = t_b * s[b, 0]
+            r[b, 1:] = a[b, 1:] * ratio
     return r
 
 

@@ -463,10 +463,12 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
         # measured on the projected iterate, which is what is returned: a Newton
         # iterate can sit slightly outside the cone, and projecting it afterwards
         # could undo a convergence decided on the unprojected one
-        rr = _project(s * D, mx, my)
-        uu = (W @ rr.ravel()).reshape(n, 3) + q
-        return _natural_map(rr, uu, q, mx, my)
+        nonlocal r_final, u_final
+        r_final = _project(s * D, mx, my)
+        u_final = (W @ r_final.ravel()).reshape(n, 3) + q
+        return _natural_map(r_final, u_final, q, mx, my)
 
+    r_final = u_final = None  # the projected last iterate and its displacement
     residual = true_residual(s)
     history = [residual]
     it = 0
@@ -528,8 +530,5 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
                 break
         if eta > 0:
             eta = max(0.2 * eta, 1e-10 * w_ref)
-    r_final = _project(s * D, mx, my)
-    u_final = (W @ r_final.ravel()).reshape(n, 3) + q
-    residual = _natural_map(r_final, u_final, q, mx, my)
-    history[-1] = residual
+    # every exit follows a true_residual of the last s: r_final, u_final are its
     return LocalSolution(r_final, u_final, it, residual, residual <= tol, tuple(history), "newton")
