@@ -149,7 +149,7 @@ class _Tangent:
     :func:`~fe_contact._threads.dense_threads` threads (SuperLU releases the GIL).
     """
 
-    def __init__(self, model: Model, K):
+    def __init__(self, model: Model, K, lu_fallback: bool = True):
         free = model.free_dofs
         n_lower = model.n_contacts
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
@@ -167,6 +167,8 @@ class _Tangent:
                 self.method = "multifrontal"
                 build_s = (structure.flops + m**3) / _DENSE_FLOPS
             except NotPositiveDefinite:
+                if not lu_fallback:
+                    raise
                 G = None
         if G is None:
             self.factor = _LUFactor(K, free, None if structure is None else structure.perm)
@@ -366,7 +368,24 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         t_phase = time.perf_counter()
         if need_tangent:
             try:
-                tangent = _Tangent(model, K)
+                try:
+                    # a tangent at an iterate (K is at the start state only at
+                    # iteration 0 with reuse) may be indefinite: the
+                    # predictor's strain in the top layer (0.4-0.8 at 2.3e5 dofs)
+                    # is past St Venant-Kirchhoff's stable range in compression
+                    tangent = _Tangent(model, K, lu_fallback=it == 0 and opts.reuse_tangent)
+                except NotPositiveDefinite:
+                    # take it at the converged start of the step instead, as
+                    # a step without a cached tangent does
+                    t_assembly = time.perf_counter()
+                    K = None
+                    _, K, _ = internal_force_and_tangent(
+                        model.geometry, mesh.elements, state.displacement, model.material, model.pattern
+                    )
+                    t_assembly = time.perf_counter() - t_assembly
+                    timings["assembly"] += t_assembly
+                    t_phase += t_assembly  # (not tangent time too)
+                    tangent = _Tangent(model, K)
             except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
                 status, message = Status.TANGENT_SINGULAR, f"tangent stiffness singular at Newton iteration {it}: {exc}"
                 break
