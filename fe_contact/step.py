@@ -295,6 +295,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     workspace = tangent.workspace.copy() if tangent is not None else None
     prev_res = math.inf
     n_tangents = 0
+    at_start = False  # the tangent in use was taken at the start state as a fallback
     timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
     rel_res = math.inf
     min_det = math.nan
@@ -349,9 +350,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
             break
         # (the first correction of a step also settles the contact statuses, so
         # its contraction says little about the tangent)
-        if (not need_tangent and it >= 2 and rel_res > opts.refresh_ratio * prev_res
+        if (not need_tangent and not at_start and it >= 2 and rel_res > opts.refresh_ratio * prev_res
                 and _refresh_pays(tangent, rel_res / prev_res, rel_res, opts, it)):
-            # the reused tangent contracts too slowly here: refresh it
+            # the reused tangent contracts too slowly here: refresh it (not
+            # after a fallback: another would come back to the same tangent)
             need_tangent = True
             K = None
         prev_res = rel_res
@@ -370,9 +372,9 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
             try:
                 try:
                     # a tangent at an iterate (K is at the start state only at
-                    # iteration 0 with reuse) may be indefinite: the
-                    # predictor's strain in the top layer (0.4-0.8 at 2.3e5 dofs)
-                    # is past St Venant-Kirchhoff's stable range in compression
+                    # iteration 0 with reuse) may be indefinite: an iterate can
+                    # strain the top layer past St Venant-Kirchhoff's stable
+                    # range in compression (E = -0.49, det F = 0.2 at 2.3e5 dofs)
                     tangent = _Tangent(model, K, lu_fallback=it == 0 and opts.reuse_tangent)
                 except NotPositiveDefinite:
                     # take it at the converged start of the step instead, as
@@ -386,6 +388,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
                     timings["assembly"] += t_assembly
                     t_phase += t_assembly  # (not tangent time too)
                     tangent = _Tangent(model, K)
+                    at_start = True
             except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
                 status, message = Status.TANGENT_SINGULAR, f"tangent stiffness singular at Newton iteration {it}: {exc}"
                 break
