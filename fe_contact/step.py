@@ -147,6 +147,8 @@ class _Tangent:
     definite, or the mesh is not a grid, SuperLU factorises it and ``K_ff^-1``
     is applied to one unit vector per contact dof, on
     :func:`~fe_contact._threads.dense_threads` threads (SuperLU releases the GIL).
+    With ``lu_fallback=False`` a grid mesh's tangent that is not positive
+    definite raises :class:`~fe_contact.cholesky.NotPositiveDefinite` instead.
     """
 
     def __init__(self, model: Model, K, lu_fallback: bool = True):
