@@ -222,8 +222,9 @@ def _project(a, mx, my) -> np.ndarray:
             r[axis, 0] = a[axis, 0]
         b = np.flatnonzero(rest & (sup > 0.0))
         if b.size:
-            m2 = mu[b] ** 2
-            t_b, delta = _boundary_offset(tn[b], t[b, 1:], mu[b])
+            mu_b = mu[b]
+            m2 = mu_b * mu_b
+            t_b, delta = _boundary_offset(tn[b], t[b, 1:], mu_b)
             d = delta[:, None] + m2 * t_b[:, None]
             # d == 0 only if delta and mu^2 t both underflow: |r_tk| is below rounding
             ratio = np.where(d > 0.0, m2 * t_b[:, None] / d, 0.0)

@@ -382,7 +382,6 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
     with pytest.raises(NotPositiveDefinite):
         step_module._Tangent(full, K, lu_fallback=False)
 
-
     def no_superlu(*args, **kwargs):
         raise AssertionError("SuperLU fallback taken")
 
@@ -396,3 +395,30 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
     scale = np.abs(b.displacement).max()
     assert np.abs(a.displacement - b.displacement).max() < 1e-6 * scale
     assert np.abs(a.reaction - b.reaction).max() < 1e-6 * np.abs(b.reaction).max()
+
+
+def test_after_a_fallback_to_the_start_tangent_a_step_refreshes_no_more(monkeypatch):
+    """Every refresh at an iterate meets an indefinite tangent (forced here):
+    the first falls back to the start-state tangent, and the step keeps it
+    instead of building that same tangent again at each slow contraction."""
+    import importlib
+
+    from fe_contact.cholesky import NotPositiveDefinite
+
+    step_module = importlib.import_module("fe_contact.step")
+    model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
+    s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+    real = step_module._Tangent
+
+    class Indefinite(real):
+        def __init__(self, model, K, lu_fallback=True):
+            if not lu_fallback:
+                raise NotPositiveDefinite("forced")
+            super().__init__(model, K, lu_fallback)
+
+    monkeypatch.setattr(step_module, "_refresh_pays", lambda *args: True)
+    monkeypatch.setattr(step_module, "_Tangent", Indefinite)
+    s2, rep = step(model, s1, push(45.0))
+    assert rep.converged, rep.message
+    assert rep.newton_iterations > 3  # room for more than one refresh
+    assert rep.tangent_updates == 1
