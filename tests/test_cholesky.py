@@ -61,6 +61,8 @@ def test_root_inverse_is_the_contact_block_of_the_inverse_for_a_random_partition
     G = factor.root_inverse()
     np.testing.assert_allclose(G, inverse[np.ix_(ci, ci)], rtol=0, atol=1e-10 * np.abs(G).max())
     np.testing.assert_array_equal(G, G.T)
+    # the local solvers view its rows as contact blocks (n, 3, m): contiguous only in C order
+    assert G.flags.c_contiguous
     b = rng.standard_normal(free.size)
     np.testing.assert_allclose(factor.solve(b), inverse @ b, rtol=0, atol=1e-10 * np.abs(inverse @ b).max())
 
