@@ -461,3 +461,28 @@ def test_rigid_predictor_gives_the_same_step_in_fewer_iterations_and_carries_lar
     # the block slid: its lower face followed the push to within the elastic lag
     lag = rep_big.upper_centroid[:2] - rep_big.lower_centroid[:2]
     assert np.linalg.norm(lag) < 0.05 * 4e-3
+
+
+def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypatch):
+    """A 30 deg turn of the upper face in one step: from the rigid predictor the
+    reused tangent converges to the full-Newton solution and the lower face
+    follows the turn; from the upper face turned alone an element inverts."""
+    import importlib
+
+    step_module = importlib.import_module("fe_contact.step")
+    turn = Command(1e-3, 0.0, 0.0, math.radians(30.0))
+    results = {}
+    for reuse in (True, False):
+        model = make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(reuse_tangent=reuse))
+        pressed, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+        results[reuse] = (model, pressed, *step(model, pressed, turn))
+    for model, pressed, state, rep in results.values():
+        assert rep.converged, rep.message
+        assert rep.equilibrium_error < EQUILIBRIUM_TOL
+        assert 29.0 < math.degrees(rep.lower_yaw) < 30.0  # lags the upper face a little
+    (model, pressed, reused, _), (_, _, full, _) = results[True], results[False]
+    scale = np.abs(full.displacement).max()
+    assert np.abs(reused.displacement - full.displacement).max() < SOLVER_ATOL_REL * scale
+    monkeypatch.setattr(step_module, "rigid_predictor", lambda model, state, command: state.displacement.copy())
+    _, rep_upper = step(model, pressed, turn)
+    assert rep_upper.status.value == "element_inverted"
