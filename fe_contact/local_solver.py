@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
+from numba import njit
 
 from ._threads import dense_kernel
 from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
@@ -304,50 +305,78 @@ def _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
     Isotropic cone with coefficients ``mu`` (1 or 0) on the scaled variables
     of the problem ``u_s = D W D s + q_s``, ``D = diag(d)`` (``D W D`` is never
     formed: at 1e4 contacts it is another 7 GB matrix).  ``fixed`` marks
-    scaled components pinned to 0 (axes with zero friction).
+    scaled components pinned to 0 (axes with zero friction).  The product
+    with ``W`` is BLAS; the per-contact rest is :func:`_ac_kernel`.
     """
     n = s.shape[0]
     u = (d * (W @ (d * s.ravel()))).reshape(n, 3) + qs
-    p = s[:, 0] - rho * u[:, 0]
-    active = p > 0
-    R = mu * np.maximum(p, 0.0)
-    z = s[:, 1:] - rho[:, None] * u[:, 1:]
-    zn = np.linalg.norm(z, axis=1)
-    stick = (zn <= R) & (R > 0)
-    zhat = np.where(zn[:, None] > 0, z / np.where(zn > 0, zn, 1.0)[:, None], 0.0)
+    size = n if jacobian else 0
+    P, Q = np.zeros((size, 3, 3)), np.zeros((size, 3, 3))
+    F = _ac_kernel(np.ascontiguousarray(s), u, mu, rho, fixed, P, Q)
+    return (F, P, Q) if jacobian else F
 
-    F = np.empty_like(s)
-    F[:, 0] = np.where(active, rho * u[:, 0], s[:, 0])
-    F[:, 1:] = np.where(stick[:, None], rho[:, None] * u[:, 1:], s[:, 1:] - R[:, None] * zhat)
-    if not jacobian:
-        return np.where(fixed, s, F)
 
-    # The Jacobian is blockdiag(P) + Q W_s with 3x3 blocks P, Q per contact:
-    #   normal row, active:   rho * W_n            (P = 0,   Q = rho e_n^T)
-    #   normal row, inactive: e_n                  (P = e_n, Q = 0)
-    #   tangent rows, stick:  rho * W_t            (P = 0,   Q = rho [0 I])
-    #   tangent rows, slide:  E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)
-    #                         with dR = mu (e_n - rho W_n) when active, else 0.
-    P = np.zeros((n, 3, 3))
-    Q = np.zeros((n, 3, 3))
-    P[:, 0, 0] = np.where(active, 0.0, 1.0)
-    Q[:, 0, 0] = np.where(active, rho, 0.0)
-    proj = np.eye(2)[None] - zhat[:, :, None] * zhat[:, None, :]
-    coef = np.where(zn > 0, R / np.where(zn > 0, zn, 1.0), 0.0)
-    mu_active = np.where(active, mu, 0.0)
-    P_slide = np.concatenate([-(mu_active[:, None] * zhat)[:, :, None], np.eye(2)[None] - coef[:, None, None] * proj], axis=2)
-    Q_slide = np.concatenate(
-        [(mu_active * rho)[:, None, None] * zhat[:, :, None], (coef * rho)[:, None, None] * proj], axis=2
-    )
-    Q_stick = np.zeros((n, 2, 3))
-    Q_stick[:, :, 1:] = rho[:, None, None] * np.eye(2)[None]
-    P[:, 1:] = np.where(stick[:, None, None], 0.0, P_slide)
-    Q[:, 1:] = np.where(stick[:, None, None], Q_stick, Q_slide)
-    # components pinned to zero: F = s, row e_i
-    P = np.where(fixed[:, :, None], np.eye(3)[None], P)
-    Q = np.where(fixed[:, :, None], 0.0, Q)
-    F = np.where(fixed, s, F)
-    return F, P, Q
+@njit(cache=True)
+def _ac_kernel(s, u, mu, rho, fixed, P, Q):
+    """``F`` of :func:`_alart_curnier` for displacements ``u``, and its
+    Jacobian blocks into ``P``, ``Q`` (zeroed, shape (n, 3, 3)) unless they
+    have no rows.
+
+    Per contact, with ``p = s_n - rho u_n``, ``R = mu max(p, 0)``, ``z = s_t -
+    rho u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
+
+    * normal row, active (p > 0): ``rho W_n`` (P = 0, Q = rho e_n);
+      inactive: ``e_n`` (P = e_n, Q = 0);
+    * tangent rows, stick (|z| <= R, R > 0): ``rho W_t`` (P = 0, Q = rho [0 I]);
+      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)`` with
+      ``dR = mu (e_n - rho W_n)`` when active, else 0;
+    * components pinned to zero: ``F = s``, row ``e_i``.
+    """
+    n = s.shape[0]
+    F = np.empty((n, 3))
+    jac = P.shape[0] > 0
+    for c in range(n):
+        r = rho[c]
+        p = s[c, 0] - r * u[c, 0]
+        active = p > 0.0
+        R = mu[c] * p if active else 0.0
+        z1 = s[c, 1] - r * u[c, 1]
+        z2 = s[c, 2] - r * u[c, 2]
+        zn = math.sqrt(z1 * z1 + z2 * z2)
+        stick = zn <= R and R > 0.0
+        h1, h2 = (z1 / zn, z2 / zn) if zn > 0.0 else (0.0, 0.0)
+        F[c, 0] = r * u[c, 0] if active else s[c, 0]
+        if stick:
+            F[c, 1], F[c, 2] = r * u[c, 1], r * u[c, 2]
+        else:
+            F[c, 1], F[c, 2] = s[c, 1] - R * h1, s[c, 2] - R * h2
+        if jac:
+            if active:
+                Q[c, 0, 0] = r
+            else:
+                P[c, 0, 0] = 1.0
+            if stick:
+                Q[c, 1, 1] = r
+                Q[c, 2, 2] = r
+            else:
+                coef = R / zn if zn > 0.0 else 0.0
+                m_act = mu[c] if active else 0.0
+                h = (h1, h2)
+                for i in range(2):
+                    P[c, 1 + i, 0] = -m_act * h[i]
+                    Q[c, 1 + i, 0] = m_act * r * h[i]
+                    for j in range(2):
+                        proj = (1.0 if i == j else 0.0) - h[i] * h[j]
+                        P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
+                        Q[c, 1 + i, 1 + j] = coef * r * proj
+        for i in range(3):
+            if fixed[c, i]:
+                F[c, i] = s[c, i]
+                if jac:
+                    for j in range(3):
+                        P[c, i, j] = 1.0 if i == j else 0.0
+                        Q[c, i, j] = 0.0
+    return F
 
 
 def _newton_matrix(P, Q, W, d) -> np.ndarray:
