@@ -385,3 +385,43 @@ def test_bad_input_raises(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         solve_local(**args)
+
+
+def test_alart_curnier_jacobian_matches_finite_differences():
+    """The generalised Jacobian blocks of the compiled Alart-Curnier function
+    against central differences of the function itself, at points where every
+    contact is safely inside one of its smooth pieces (open, sticking or
+    sliding, active or not) and with one friction axis pinned."""
+    from fe_contact.local_solver import _alart_curnier, _jacobian_product
+
+    rng = np.random.default_rng(11)
+    n, m = 40, 120
+    B = rng.standard_normal((m, m))
+    W = B @ B.T / m + 0.5 * np.eye(m)
+    d = np.tile([1.0, 0.7, 0.2], n)
+    d[3 * 5 + 2] = 0.0  # contact 5 has no friction along t_y
+    fixed = np.column_stack([np.zeros(n, bool), d.reshape(n, 3)[:, 1:] == 0])
+    mu = np.ones(n)
+    mu[7] = 0.0  # a frictionless contact
+    rho = rng.uniform(0.5, 2.0, n)
+    qs = rng.standard_normal((n, 3))
+    # resample until no contact is within 1e-3 of a kink (p = 0, |z| = R, |z| = 0)
+    while True:
+        s = rng.standard_normal((n, 3))
+        u = (d * (W @ (d * s.ravel()))).reshape(n, 3) + qs
+        p = s[:, 0] - rho * u[:, 0]
+        zn = np.linalg.norm(s[:, 1:] - rho[:, None] * u[:, 1:], axis=1)
+        R = mu * np.maximum(p, 0.0)
+        if np.all(np.abs(p) > 1e-3) and np.all(np.abs(zn - R) > 1e-3) and np.all(zn > 1e-3):
+            break
+    active, stick = p > 0, (zn <= R) & (R > 0)
+    assert active.any() and (~active).any() and stick.any() and (active & ~stick).any()
+    F, P, Q = _alart_curnier(s, W, d, qs, mu, rho, fixed)
+    np.testing.assert_array_equal(F, _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=False))
+    eps = 1e-7
+    for _ in range(5):
+        v = rng.standard_normal(3 * n)
+        fd = (_alart_curnier(s + eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)
+              - _alart_curnier(s - eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)).ravel() / (2 * eps)
+        Jv = _jacobian_product(P, Q, W, d, v)
+        np.testing.assert_allclose(Jv, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
