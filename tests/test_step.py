@@ -424,19 +424,20 @@ def test_after_a_fallback_to_the_start_tangent_a_step_refreshes_no_more(monkeypa
     assert rep.tangent_updates == 1
 
 
-def test_rigid_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pushes(monkeypatch):
+def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pushes(monkeypatch):
     """The Newton loop starts from the block carried rigidly by the command's
-    in-plane motion.  The same step started from the upper face moved alone
-    (the rest left behind) converges to the same state, in more iterations; a
-    push of 20 % of the block width in one step inverts elements from that
-    start, and converges from the rigid one to the full-Newton solution."""
+    in-plane motion and compressed homogeneously by its dz.  The same press
+    and push started from the upper face moved alone (the rest left behind)
+    converge to the same states, in more iterations; a push of 20 % of the
+    block width in one step inverts elements from that start, and converges
+    from the predictor's to the full-Newton solution."""
     import importlib
 
     step_module = importlib.import_module("fe_contact.step")
     models = {reuse: make_model(0.3, 0.05, divisions=(6, 6, 3), quadrature=3,
                                 options=SolverOptions(reuse_tangent=reuse)) for reuse in (True, False)}
     model = models[True]
-    pressed, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+    pressed, rep_press = step(model, initial_state(model), Command(dz=-0.1e-3))
     turn = Command(0.2e-3, 0.2e-3, 0.0, math.radians(0.5))
     rigid, rep_rigid = step(model, pressed, turn)
     big = push(45.0, 4e-3)
@@ -444,9 +445,14 @@ def test_rigid_predictor_gives_the_same_step_in_fewer_iterations_and_carries_lar
     pressed_full, _ = step(models[False], initial_state(models[False]), Command(dz=-0.1e-3))
     big_full, rep_full = step(models[False], pressed_full, big)
 
-    monkeypatch.setattr(step_module, "rigid_predictor", lambda model, state, command: state.displacement.copy())
+    monkeypatch.setattr(step_module, "predictor", lambda model, state, command: state.displacement.copy())
     upper_only, rep_upper = step(model, pressed, turn)
     _, rep_big_upper = step(model, pressed, big)
+    pressed_upper, rep_press_upper = step(model, initial_state(model), Command(dz=-0.1e-3))
+    assert rep_press_upper.converged, rep_press_upper.message
+    assert rep_press.newton_iterations < rep_press_upper.newton_iterations
+    scale = np.abs(pressed.displacement).max()
+    assert np.abs(pressed.displacement - pressed_upper.displacement).max() < SOLVER_ATOL_REL * scale
 
     for rep in (rep_rigid, rep_upper, rep_big, rep_full):
         assert rep.converged, rep.message
@@ -483,6 +489,6 @@ def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypa
     (model, pressed, reused, _), (_, _, full, _) = results[True], results[False]
     scale = np.abs(full.displacement).max()
     assert np.abs(reused.displacement - full.displacement).max() < SOLVER_ATOL_REL * scale
-    monkeypatch.setattr(step_module, "rigid_predictor", lambda model, state, command: state.displacement.copy())
+    monkeypatch.setattr(step_module, "predictor", lambda model, state, command: state.displacement.copy())
     _, rep_upper = step(model, pressed, turn)
     assert rep_upper.status.value == "element_inverted"
