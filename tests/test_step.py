@@ -470,7 +470,7 @@ def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pus
 
 
 def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypatch):
-    """A 30 deg turn of the upper face in one step: from the rigid predictor the
+    """A 30 deg turn of the upper face in one step: from the predictor the
     reused tangent converges to the full-Newton solution and the lower face
     follows the turn; from the upper face turned alone an element inverts."""
     import importlib
