@@ -104,7 +104,7 @@ def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: n
 
     A force scale for the step's residual that stays meaningful when the
     block is lifted off and all forces vanish.  The predictor cannot
-    give it: a block moved rigidly in the air is in equilibrium to rounding.
+    give it: a block moved in the plane in the air is in equilibrium to rounding.
     """
     upper = model.mesh.upper
     U_upper_only = np.array(state.displacement, dtype=float)

@@ -194,7 +194,7 @@ def test_bad_input_in_a_real_process_exits_2_without_traceback(tmp_path):
 SOLVER_TABLE = "[solver]"  # edits go here: a failing [[load]] after the two good steps, or a solver limit
 SOLVER_FAILURES = {
     # pressed by more than the block's height (a push of any length no longer
-    # fails: the rigid predictor slides the block along)
+    # fails: the predictor slides the block along)
     "element inverted": ("[[load]]\ndz = -0.05\n[solver]", "element_inverted", 2),
     "not finite": ("[[load]]\ndx = 1e300\n[solver]", "not_finite", 2),
     "newton not converged": ("[solver]\nnewton_max_iter = 1", "newton_not_converged", 0),

@@ -439,9 +439,9 @@ def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pus
     model = models[True]
     pressed, rep_press = step(model, initial_state(model), Command(dz=-0.1e-3))
     turn = Command(0.2e-3, 0.2e-3, 0.0, math.radians(0.5))
-    rigid, rep_rigid = step(model, pressed, turn)
+    turned, rep_turned = step(model, pressed, turn)
     big = push(45.0, 4e-3)
-    big_rigid, rep_big = step(model, pressed, big)
+    big_predicted, rep_big = step(model, pressed, big)
     pressed_full, _ = step(models[False], initial_state(models[False]), Command(dz=-0.1e-3))
     big_full, rep_full = step(models[False], pressed_full, big)
 
@@ -454,16 +454,16 @@ def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pus
     scale = np.abs(pressed.displacement).max()
     assert np.abs(pressed.displacement - pressed_upper.displacement).max() < SOLVER_ATOL_REL * scale
 
-    for rep in (rep_rigid, rep_upper, rep_big, rep_full):
+    for rep in (rep_turned, rep_upper, rep_big, rep_full):
         assert rep.converged, rep.message
         assert rep.equilibrium_error < EQUILIBRIUM_TOL
-    scale = np.abs(rigid.displacement).max()
-    assert np.abs(rigid.displacement - upper_only.displacement).max() < SOLVER_ATOL_REL * scale
-    assert np.abs(rigid.reaction - upper_only.reaction).max() < SOLVER_ATOL_REL * np.abs(rigid.reaction).max()
-    assert rep_rigid.newton_iterations < rep_upper.newton_iterations
+    scale = np.abs(turned.displacement).max()
+    assert np.abs(turned.displacement - upper_only.displacement).max() < SOLVER_ATOL_REL * scale
+    assert np.abs(turned.reaction - upper_only.reaction).max() < SOLVER_ATOL_REL * np.abs(turned.reaction).max()
+    assert rep_turned.newton_iterations < rep_upper.newton_iterations
     assert rep_big_upper.status.value == "element_inverted"
     scale = np.abs(big_full.displacement).max()
-    assert np.abs(big_rigid.displacement - big_full.displacement).max() < SOLVER_ATOL_REL * scale
+    assert np.abs(big_predicted.displacement - big_full.displacement).max() < SOLVER_ATOL_REL * scale
     # the block slid: its lower face followed the push to within the elastic lag
     lag = rep_big.upper_centroid[:2] - rep_big.lower_centroid[:2]
     assert np.linalg.norm(lag) < 0.05 * 4e-3
