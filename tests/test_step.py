@@ -313,6 +313,32 @@ def test_ill_conditioned_tangent_is_reported_not_raised():
     assert s1 is s0
 
 
+def test_singular_tangent_is_reported_with_its_status(monkeypatch):
+    """A tangent neither Cholesky nor SuperLU can factorise (forced here: no
+    material makes K_ff exactly singular with the upper face prescribed) ends
+    the step with status tangent_singular, the iteration named, the state kept."""
+    import importlib
+
+    from fe_contact.cholesky import NotPositiveDefinite
+
+    step_module = importlib.import_module("fe_contact.step")
+
+    def not_spd(*args, **kwargs):
+        raise NotPositiveDefinite("forced")
+
+    def singular(*args, **kwargs):
+        raise RuntimeError("Factor is exactly singular")
+
+    monkeypatch.setattr(step_module, "factorise", not_spd)
+    monkeypatch.setattr(step_module, "factorise_free", singular)
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s0 = initial_state(model)
+    s1, rep = step(model, s0, Command(dz=-0.1e-3))
+    assert rep.status.value == "tangent_singular"
+    assert "iteration 0" in rep.message and "exactly singular" in rep.message
+    assert s1 is s0
+
+
 def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
     """A slow contraction is worth a new tangent only if the iterations it saves
     cost more than building it; a diverging or too slow one always is."""
