@@ -203,17 +203,32 @@ class SupernodalFactor:
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``K_ff^-1 rhs`` for one right-hand side (n_free,) or several (n_free, k)."""
+        rhs = np.asarray(rhs, dtype=float)
+        return self.backward(self.forward(rhs)).reshape(rhs.shape)
+
+    def forward(self, rhs: np.ndarray) -> np.ndarray:
+        """``y`` with ``L y = rhs`` (rhs (n_free,) or (n_free, k), free-dof
+        order), in elimination order, shape (n_free, k).  The root (contact)
+        block is ``y[-n_root:]``; a right-hand side nonzero only on the contact
+        dofs changes nothing else (:meth:`root_forward`)."""
         st = self.structure
         rhs = np.asarray(rhs, dtype=float)
         x = rhs[st.perm].reshape(rhs.shape[0], -1)
         starts = st.starts
-        for s in range(st.n_parts):  # forward: L y = b
+        for s in range(st.n_parts):  # L y = b
             a, b = starts[s], starts[s + 1]
             y = blas.dtrsm(1.0, self._diagonal[s], x[a:b], lower=1)
             x[a:b] = y
             if st.boundary[s].size:
                 x[st.boundary[s]] -= self._below[s] @ y
-        for s in range(st.n_parts - 1, -1, -1):  # backward: L^T x = y
+        return x
+
+    def backward(self, y: np.ndarray) -> np.ndarray:
+        """``x`` with ``L^T x = y`` for ``y`` from :meth:`forward` (overwritten),
+        in free-dof order, shape (n_free, k)."""
+        st = self.structure
+        x, starts = y, st.starts
+        for s in range(st.n_parts - 1, -1, -1):  # L^T x = y
             a, b = starts[s], starts[s + 1]
             y = x[a:b]
             if st.boundary[s].size:
@@ -221,7 +236,18 @@ class SupernodalFactor:
             x[a:b] = blas.dtrsm(1.0, self._diagonal[s], y, lower=1, trans_a=1)
         out = np.empty_like(x)
         out[st.perm] = x
-        return out.reshape(rhs.shape)
+        return out
+
+    def root_forward(self, b: np.ndarray) -> np.ndarray:
+        """``L_root^-1 b`` (n_root,): the root block of :meth:`forward` of a
+        right-hand side ``b`` on the contact dofs (root order) and 0 elsewhere."""
+        return blas.dtrsm(1.0, self._diagonal[-1], np.asarray(b, dtype=float).reshape(-1, 1), lower=1).ravel()
+
+    def root_backward(self, y: np.ndarray) -> np.ndarray:
+        """The contact dofs (root order) of :meth:`backward`: ``L_root^-T
+        y_root``, the root block being eliminated last."""
+        n_root = self.structure.n_root
+        return blas.dtrsm(1.0, self._diagonal[-1], y[-n_root:], lower=1, trans_a=1)
 
     def root_inverse(self) -> np.ndarray:
         """``S^-1``, the contact block of ``K_ff^-1`` (n_root, n_root), symmetric,

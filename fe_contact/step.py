@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from ._threads import dense_kernel, dense_threads
-from .cholesky import NotPositiveDefinite, factorise
+from .cholesky import NotPositiveDefinite, SupernodalFactor, factorise
 from .elasticity import internal_force, internal_force_and_tangent
 from .local_solver import NewtonWorkspace, solve_local
 from .model import Command, IterLog, Model, NodeStatus, State, Status, StepReport
@@ -228,7 +228,8 @@ class _Tangent:
         solve_s = 4.0 * self.factor.nnz / _SPARSE_FLOPS
         local_s = _LOCAL_PRODUCTS * 2.0 * float(m) ** 2 / _SPARSE_FLOPS
         self.build_s = n_points * _S_PER_TANGENT_POINT + build_s
-        self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + 2.0 * solve_s + local_s
+        solves = 1.0 if self.method == "multifrontal" else 2.0  # per iteration (solve_with_contact)
+        self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + solves * solve_s + local_s
         # to the local frames, W = (I x T) G (I x T)^T, in place a band of rows at
         # a time (two batched products; no second matrix of W's size)
         T = model.frame
@@ -272,11 +273,35 @@ class _Tangent:
         """``K_ff^-1 rhs`` for one right-hand side (n_free,) or several (n_free, k)."""
         return self.factor.solve(rhs_free)
 
-    def contact_response(self, force_world: np.ndarray) -> np.ndarray:
-        """``K_ff^-1 C^T f`` for contact-node forces ``f`` (n_lower, 3), world frame."""
-        rhs = np.zeros(self.n_free)
-        rhs[self.contact_index] = force_world.ravel()
-        return self.solve(rhs)
+    def solve_with_contact(self, rhs_free: np.ndarray):
+        """Begin ``K_ff^-1 (rhs + C^T f)`` for contact-node forces ``f`` not
+        known yet.
+
+        Returns the contact-node displacements of ``K_ff^-1 rhs`` (n_lower, 3)
+        and a function of ``f`` (n_lower, 3, world frame) that returns the
+        whole solution (n_free,).  On the multifrontal factor this is one
+        forward and one backward substitution in all: the contact dofs are
+        eliminated last, so ``f`` changes only the root block of the forward
+        pass.  On SuperLU it is two solves.
+        """
+        if isinstance(self.factor, SupernodalFactor):
+            factor = self.factor
+            y = factor.forward(rhs_free)
+            contact = factor.root_backward(y).reshape(-1, 3)
+
+            def finish(force_world):
+                y[-3 * contact.shape[0]:, 0] += factor.root_forward(force_world.ravel())
+                return factor.backward(y).ravel()
+
+            return contact, finish
+        x = self.solve(rhs_free)
+
+        def finish_lu(force_world):
+            rhs = np.zeros(self.n_free)
+            rhs[self.contact_index] = force_world.ravel()
+            return x + self.solve(rhs)
+
+        return x[self.contact_index].reshape(-1, 3), finish_lu
 
 
 def step(model: Model, state: State, command: Command, local_problem_hook=None, *,
@@ -451,8 +476,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
                 break
         timings["tangent"] += time.perf_counter() - t_phase
         t_phase = time.perf_counter()
-        dU_free = tangent.solve(-R)
-        dw0 = dU_free[tangent.contact_index].reshape(-1, 3)
+        dw0, finish_solve = tangent.solve_with_contact(-R)
         w = U[lower] - U_start_lower
         w[:, 2] = mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
         W_scaled = tangent.W_scaled
@@ -477,7 +501,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
             )
             break
         t_phase = time.perf_counter()
-        dU_free = dU_free + tangent.contact_response((local.r - r) @ T)
+        dU_free = finish_solve((local.r - r) @ T)
         timings["solve"] += time.perf_counter() - t_phase
         U_flat = U.ravel()
         U_flat[free] += dU_free
