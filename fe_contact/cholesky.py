@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.linalg import blas, lapack
 
 __all__ = ["SupernodalStructure", "SupernodalFactor", "NotPositiveDefinite", "supernodal_structure", "factorise"]
@@ -58,15 +59,11 @@ class SupernodalStructure:
         Part receiving each part's update (-1 for the last part).
     relative : tuple of ndarray of int64
         Per part, the positions of its boundary inside its parent's front.
-    runs : tuple of ndarray of int64
-        Per part, ``relative`` cut into runs of consecutive positions, one row
-        ``(first position in the part's update, first position in the parent's
-        front, length)`` each: the update is added to its parent a run of
-        columns at a time, with slices instead of a two-dimensional gather.
     source, target : tuple of ndarray of int64
         Per part, the positions in the matrix data array (CSR of the full
         pattern) of the entries the part assembles, and their flat positions
-        (Fortran order) in its frontal matrix (lower triangle).
+        (Fortran order) in the pivot columns of its frontal matrix, shape
+        ``(p + q, p)`` for ``p`` dofs and ``q`` boundary dofs (lower triangle).
     nnz : int
         Entries of the factor ``L``, diagonal blocks counted whole.
     max_front : int
@@ -81,7 +78,6 @@ class SupernodalStructure:
     boundary: tuple
     parent: np.ndarray
     relative: tuple
-    runs: tuple
     source: tuple
     target: tuple
     nnz: int
@@ -176,13 +172,8 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
         for s in range(n_parts)
     )
     free_position = np.searchsorted(free, order)
-    runs = []
-    for rel in relative:
-        first = np.flatnonzero(np.diff(rel, prepend=-2) != 1)
-        runs.append(np.stack([first, rel[first], np.diff(first, append=rel.size)], axis=1))
     return SupernodalStructure(
         perm=free_position, starts=starts, boundary=tuple(boundary), parent=parent, relative=relative,
-        runs=tuple(runs),
         source=tuple(source), target=tuple(target), nnz=int(nnz), max_front=max(f.size for f in fronts),
         flops=float(flops),
     )
@@ -268,6 +259,30 @@ class SupernodalFactor:
         return G.T
 
 
+@njit(cache=True)
+def _extend_add(panel, corner, U, rel):
+    """Add a child's update ``U`` (its lower triangle; the upper one is not
+    computed) into its parent's front: entry ``(i, j)``, ``i >= j``, goes to
+    front position ``(rel[i], rel[j])``, which is in the parent's ``panel``
+    (its pivot columns, ``(p + q, p)``) if ``rel[j] < p``, else in its
+    ``corner`` (the boundary block, ``(q, q)``).  All three Fortran-ordered.
+
+    One pass over the update, a column at a time.  The numpy equivalent, a
+    gather-add-scatter per run of consecutive positions, took a third of the
+    factorisation at 2.3e5 dofs (21.7 of 68 s).
+    """
+    p = panel.shape[1]
+    m = rel.size
+    for j in range(m):
+        col = rel[j]
+        if col < p:
+            for i in range(j, m):
+                panel[rel[i], col] += U[i, j]
+        else:
+            for i in range(j, m):  # rel is increasing: rel[i] >= col >= p
+                corner[rel[i] - p, col - p] += U[i, j]
+
+
 def factorise(structure: SupernodalStructure, data: np.ndarray) -> SupernodalFactor:
     """Multifrontal Cholesky factorisation.
 
@@ -295,25 +310,27 @@ def factorise(structure: SupernodalStructure, data: np.ndarray) -> SupernodalFac
     for s in range(st.n_parts):
         p = int(st.starts[s + 1] - st.starts[s])
         q = st.boundary[s].size
-        F = np.zeros((p + q, p + q), order="F")
-        F.ravel(order="F")[st.target[s]] = data[st.source[s]]
+        # the front (p + q) x (p + q) in two pieces, its upper right block
+        # (never used) left out: the pivot columns and the boundary block,
+        # which the rank update overwrites in place to become this part's
+        # update (contiguous, so BLAS needs no copy of it)
+        panel = np.zeros((p + q, p), order="F")
+        corner = np.zeros((q, q), order="F")
+        panel.ravel(order="F")[st.target[s]] = data[st.source[s]]  # the part's own columns
         for c in pending.pop(s, ()):
-            # extend-add of the lower triangle (the upper one of an update is zero)
-            rel, U = st.relative[c], updates.pop(c)
-            for u0, f0, length in st.runs[c]:
-                F[rel[u0:], f0:f0 + length] += U[u0:, u0:u0 + length]
+            _extend_add(panel, corner, updates.pop(c), st.relative[c])
         # in place where the pivot block is the whole front (the contact part)
-        L, info = lapack.dpotrf(F[:p, :p], lower=1, clean=1, overwrite_a=1)
+        L, info = lapack.dpotrf(panel[:p], lower=1, clean=1, overwrite_a=1)
         if info != 0:
             raise NotPositiveDefinite(f"pivot block of part {s} ({p} dofs) is not positive definite (dpotrf info {info})")
         diagonal.append(L)
         if q:
             # rows of L below the block: F_bs L^-T; update F_bb - (F_bs L^-T)(F_bs L^-T)^T
-            Y = blas.dtrsm(1.0, L, F[p:, :p], side=1, lower=1, trans_a=1)
+            Y = blas.dtrsm(1.0, L, panel[p:], side=1, lower=1, trans_a=1)
             below.append(np.asfortranarray(Y))
-            updates[s] = blas.dsyrk(-1.0, Y, beta=1.0, c=F[p:, p:], trans=0, lower=1)
+            updates[s] = blas.dsyrk(-1.0, Y, beta=1.0, c=corner, trans=0, lower=1, overwrite_c=1)
             pending.setdefault(int(st.parent[s]), []).append(s)
         else:
             below.append(np.zeros((0, p), order="F"))
-        del F
+        del panel, corner
     return SupernodalFactor(st, diagonal, below)
