@@ -49,8 +49,9 @@ for cmd in (Command(dz=-1e-4), Command(dx=2.26e-4, dy=2.26e-4)):
 out["wall_s"] = time.perf_counter() - t0
 out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 # flops of one factorisation of K_ff: ours (contact dofs last, which leaves W), and
-# plain nested dissection of the same matrix (no contact ordering, no W): what a
-# nested-dissection sparse direct solve of this block costs whatever it is for
+# plain nested dissection of the same matrix (no contact ordering, no W): the cost
+# of a sparse direct solve of the block itself, contact or not (after the peak
+# memory is read, the state's factors dropped first)
 from fe_contact.cholesky import supernodal_structure
 from fe_contact.mesh import nested_dissection_parts
 state = None
