@@ -21,7 +21,7 @@ from _common import write_results
 from fe_contact import initial_state, step
 from fe_contact.fclib import read_local_problem
 from fe_contact.local_solver import METHODS, solve_local
-from pushplan.scenario import load_scenario
+from pushplan.config import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 FCLIB = ROOT / "tests" / "data" / "fclib"  # copy of ../shared/fclib

@@ -21,7 +21,7 @@ from _common import write_results
 from fe_contact import SolverOptions, initial_state, step
 from fe_contact.elasticity import internal_force_and_tangent
 from fe_contact.cholesky import factorise
-from pushplan.scenario import load_scenario
+from pushplan.config import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 

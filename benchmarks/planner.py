@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 from _common import write_results
-from pushplan.planner import plan, plan_document
-from pushplan.scenario import load_scenario
+from pushplan.planning.planner import plan, plan_document
+from pushplan.config import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 PLANNING_SCENARIOS = ("plan_steel_case3", "plan_rubber", "plan_rotated_axes", "plan_yaw")

@@ -235,24 +235,38 @@ def test_solver_failure_exits_3_with_a_valid_summary(name, tmp_path, capsys):
     check_failed_run(out, status, finished)
 
 
-def test_an_exception_inside_a_step_is_a_solver_failure(tmp_path, monkeypatch, capsys):
-    module = importlib.import_module("pushplan.simulate")  # the package re-exports a function of that name
+def test_a_bug_inside_a_run_is_not_reported_as_bad_input_or_solver_failure(tmp_path, monkeypatch):
+    """A ValueError raised by a broken internal function is a bug: it propagates with
+    its traceback (exit 1 from the console script), never exit 2 or 3."""
+    module = importlib.import_module("pushplan.run.driver")
     real_step, calls = module.step, []
 
-    def breaking_step(model, state, command, **options):
+    def broken_step(model, state, command, **options):
         calls.append(command)
         if len(calls) == 2:
-            raise RuntimeError("Factor is exactly singular")
+            raise ValueError("an internal bug")
         return real_step(model, state, command, **options)
 
-    monkeypatch.setattr(module, "step", breaking_step)
+    monkeypatch.setattr(module, "step", broken_step)
     (tmp_path / "s.toml").write_text(BASE)
-    out = tmp_path / "out"
-    rc = main(["simulate", str(tmp_path / "s.toml"), "--out", str(out), "--quiet", "--no-recording"])
-    assert rc == EXIT_SOLVER_FAILURE
-    summary = check_failed_run(out, "exception", 1)
-    assert "singular" in summary["failure"]["message"]
-    assert "Traceback" not in capsys.readouterr().err
+    with pytest.raises(ValueError, match="an internal bug"):
+        main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet", "--no-recording"])
+
+
+def test_a_bug_exits_1_with_its_traceback_in_a_real_process(tmp_path):
+    (tmp_path / "s.toml").write_text(BASE)
+    code = ("import sys, pushplan.run.driver as d\n"
+            "def broken(*a, **k): raise ValueError('an internal bug')\n"
+            "d.step = broken\n"
+            "from pushplan.cli import main\n"
+            "sys.exit(main(sys.argv[1:]))\n")
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, "-c", code, "simulate", str(tmp_path / "s.toml"), "--out",
+                           str(tmp_path / "out"), "--quiet", "--no-recording"],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 1
+    assert "Traceback" in proc.stderr and "ValueError: an internal bug" in proc.stderr
+    assert "pushplan: error" not in proc.stderr
 
 
 # ---- determinism and long runs --------------------------------------------------

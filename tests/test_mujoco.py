@@ -22,7 +22,7 @@ import pytest
 
 from fe_contact import Command, initial_state, step
 from pushplan.cli import main
-from pushplan.mujoco_bridge import (
+from pushplan.mujoco.bridge import (
     CoSimulation,
     compare,
     export_plan,

@@ -17,7 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pushplan import cli, paper
+from pushplan import cli
+from pushplan.studies import paper
 
 ELEMENTS = (10, 10, 4)  # even nx, ny: node lines on the axes and diagonals through the centre
 QUADRATURE = 2

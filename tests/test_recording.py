@@ -16,10 +16,11 @@ import pytest
 from rerun.chunk import RrdReader
 
 from pushplan.cli import main
-from pushplan.plan_io import commands_to_json
-from pushplan.recording import Recorder, read_recording
-from pushplan.scenario import load_scenario
-from pushplan.simulate import simulate
+from pushplan.config.commands import commands_to_list as commands_to_json
+from pushplan.outputs.recording import Recorder
+from pushplan.outputs.recording_read import read_recording
+from pushplan.config import load_scenario
+from pushplan.run import simulate
 
 NX, NY, NZ = 4, 4, 2
 LZ = 0.010  # m, block height

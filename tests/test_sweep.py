@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pushplan.cli import EXIT_SOLVER_FAILURE, main
-from pushplan.sweep import apply_override, load_sweep, run_sweep
+from pushplan.studies.sweep import apply_override, load_sweep, run_sweep
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 SAME_TABLE_RTOL = 1e-9  # pool vs Dask: same code, same inputs; only BLAS threading could move last bits

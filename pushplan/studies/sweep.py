@@ -70,11 +70,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .io import atomic_write_bytes, atomic_write_json, prepare_output_dir
-from .scenario import ScenarioError, parse_scenario, read_toml
+from ..outputs.atomic import atomic_write_bytes, atomic_write_json, prepare_output_dir
+from ..config.files import read_toml
+from ..config.scenario import ScenarioError, parse_scenario
 
 EXECUTORS = ("process", "dask")
-CASE_RUNNERS = {"simulate": "pushplan.sweep:simulate_case", "plan": "pushplan.sweep:plan_case"}
+CASE_RUNNERS = {"simulate": "pushplan.studies.sweep:simulate_case", "plan": "pushplan.studies.sweep:plan_case"}
 """Runner name -> ``"module:function"`` with ``function(scenario, out_dir)`` writing a
 ``summary.json`` in the :mod:`pushplan.simulate` format (``status``, ``failure``,
 ``steps``) into the existing folder ``out_dir``."""
@@ -402,7 +403,7 @@ def load_sweep(path) -> Sweep:
 
 def simulate_case(scenario, out_dir: Path) -> None:
     """The ``simulate`` runner: :func:`pushplan.simulate.simulate` without a recording."""
-    from .simulate import simulate
+    from ..run import simulate
 
     simulate(scenario, out_dir, recording=False)
 
@@ -414,9 +415,9 @@ def plan_case(scenario, out_dir: Path) -> None:
     planned commands) in the simulate format, so the table has the same columns plus
     the plan's final errors.
     """
-    from .io import atomic_write_json
-    from .planner import parse_plan, plan, plan_commands_json, plan_document
-    from .simulate import step_summary
+    from ..outputs.atomic import atomic_write_json
+    from ..planning.planner import parse_plan, plan, plan_commands_json, plan_document
+    from ..run import StepSummary
 
     result = plan(scenario, parse_plan(scenario))
     doc = plan_document(result)
@@ -431,7 +432,7 @@ def plan_case(scenario, out_dir: Path) -> None:
         "failure": None if result.status != "not_converged" else {"status": result.status, "message": result.message},
         "plan": {"status": result.status, "final_error": doc["final_error"],
                  "naive_final_error": doc["naive"]["final_error"]},
-        "steps": [step_summary(r) for r in reports],
+        "steps": [StepSummary.from_report(r).to_dict() for r in reports],
     })
 
 
@@ -781,7 +782,7 @@ def heatmap_figure(rows: list[dict], spec: Heatmap, title: str = "") -> bytes:
 
 
 def cmd_sweep(args) -> int:
-    from .cli import EXIT_SOLVER_FAILURE
+    from ..errors import EXIT_SOLVER_FAILURE
 
     sweep = load_sweep(args.sweep)
     started = time.perf_counter()

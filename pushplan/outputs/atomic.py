@@ -1,5 +1,7 @@
-"""Atomic file output: write to a temporary name in the target folder, then rename,
-so a reader never sees a half-written file and a failed write leaves the old one."""
+"""The one atomic writer: every output file is written under a temporary name in its
+own folder and renamed into place, so a reader never sees a half-written file and a
+failed write leaves the old one.  Files get the mode the user's umask gives (0644
+under umask 022), like any file the user creates."""
 
 from __future__ import annotations
 
@@ -7,27 +9,39 @@ import io
 import json
 import math
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 import numpy as np
 
-_UMASK = os.umask(0)
-os.umask(_UMASK)  # read the process umask once: mkstemp files are 0600, outputs should not be
+from ..errors import InputError
+
+TEMP_SUFFIX = ".tmp"
+
+
+def reserve_temporary(path) -> Path:
+    """Create an empty temporary sibling of ``path`` (``.NAME.XXXX.tmp``, mode from the
+    umask) and return it; the caller writes it and renames it with :func:`os.replace`."""
+    path = Path(path)
+    while True:
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        try:
+            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically; returns the path."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = reserve_temporary(path)
     try:
-        os.fchmod(fd, 0o666 & ~_UMASK)
-        with os.fdopen(fd, "wb") as fh:
+        with open(tmp, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
     return path
 
@@ -53,14 +67,18 @@ def _finite_only(obj):
     return obj
 
 
-def atomic_write_json(path, obj) -> Path:
-    """Serialise ``obj`` (numpy arrays allowed) as indented strict JSON, atomically;
-    NaN and infinities are written as ``null``."""
+def json_bytes(obj) -> bytes:
+    """``obj`` (numpy arrays allowed) as indented strict JSON; NaN and infinities as ``null``."""
     try:
         text = json.dumps(obj, indent=2, default=_json_default, allow_nan=False)
     except ValueError:
         text = json.dumps(_finite_only(obj), indent=2, default=_json_default, allow_nan=False)
-    return atomic_write_bytes(path, (text + "\n").encode())
+    return (text + "\n").encode()
+
+
+def atomic_write_json(path, obj) -> Path:
+    """:func:`json_bytes` of ``obj`` written atomically."""
+    return atomic_write_bytes(path, json_bytes(obj))
 
 
 def atomic_write_npz(path, **arrays) -> Path:
@@ -75,16 +93,16 @@ def prepare_output_dir(path) -> Path:
 
     Raises
     ------
-    ValueError
+    InputError
         The path exists and is not a folder, or cannot be created or written.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise ValueError(f"output path exists and is not a folder: {path}")
+        raise InputError(f"output path exists and is not a folder: {path}")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ValueError(f"cannot create output folder {path}: {exc.strerror}") from None
+        raise InputError(f"cannot create output folder {path}: {exc.strerror}") from None
     if not os.access(path, os.W_OK | os.X_OK):
-        raise ValueError(f"output folder is not writable: {path}")
+        raise InputError(f"output folder is not writable: {path}")
     return path

@@ -1,4 +1,4 @@
-"""rerun recordings of pushes and plans, and trajectory replay.
+"""rerun recordings of pushes and plans (read back by :mod:`pushplan.outputs.recording_read`).
 
 One :class:`Recorder` per run writes one ``.rrd`` file through its own
 ``rerun.RecordingStream`` (no global state, no viewer needed).  The file is
@@ -64,17 +64,16 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import sys
-import tempfile
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from fe_contact import BlockMesh, Command, SolverOptions, StepReport
+from fe_contact import BlockMesh, StepReport
 from fe_contact.mesh import surface_quads
+
+from ..config.commands import command_to_dict
+from .atomic import reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
 APPLICATION_ID = "pushplan"
@@ -182,9 +181,7 @@ class Recorder:
         self._upper_traj = [self._upper_ref]
         self._travel = 0.0
 
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        os.close(fd)
-        self._tmp = Path(tmp)
+        self._tmp = reserve_temporary(self.path)
         log_time = os.environ.get("RERUN_LOG_TIME", "").strip().lower() in ("1", "true", "on", "yes")
         try:
             # chunks are cut by the explicit flush after each step only, never by a
@@ -252,16 +249,16 @@ class Recorder:
             self.stream.log(f"world/{name}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
         self.stream.flush()
 
-    def log_step(self, report: StepReport, summary: dict | None = None) -> None:
+    def log_step(self, report: StepReport, summary=None) -> None:
         """Log one load step.
 
         Parameters
         ----------
         report : fe_contact.StepReport
             A failed step is logged as an error line only (its state was rejected).
-        summary : dict, optional
-            ``pushplan.simulate.step_summary(report)`` when already computed; the
-            plotted numbers are taken from it so they equal ``summary.json``.
+        summary : pushplan.run.StepSummary
+            The step's summary (required for a converged step): the plotted numbers
+            are taken from it so they equal ``summary.json``.
         """
         rr = self._rr
         if self._closed:
@@ -276,10 +273,8 @@ class Recorder:
                 level=rr.TextLogLevel.ERROR))
             self.stream.flush()
             return
-        if summary is None:
-            from .simulate import step_summary
-
-            summary = step_summary(report)
+        if summary is None or summary.step != report.step_index:
+            raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
         mesh = self.mesh
         self._travel += math.sqrt(c.dx**2 + c.dy**2 + c.dz**2)
         self._set_step(report.step_index)
@@ -323,15 +318,15 @@ class Recorder:
 
         # plots
         for p in _PLOTS:
-            log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(summary[p], float))))
+            log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(getattr(summary, p), float))))
         log("run/step", rr.AnyValues(
-            dx=c.dx, dy=c.dy, dz=c.dz, dtheta_deg=math.degrees(c.dtheta),
+            **command_to_dict(c),
             lower_centroid=np.asarray(report.lower_centroid, float),
             upper_centroid=np.asarray(report.upper_centroid, float)))
         log("log", rr.TextLog(
             f"step {report.step_index}: command ({c.dx:.6g}, {c.dy:.6g}, {c.dz:.6g}) m, "
-            f"{math.degrees(c.dtheta):.6g} deg; twist {summary['twist_deg']:.4f} deg, "
-            f"lower yaw {summary['lower_yaw_deg']:.4f} deg, N {summary['normal_force']:.6g} N, "
+            f"{math.degrees(c.dtheta):.6g} deg; twist {summary.twist_deg:.4f} deg, "
+            f"lower yaw {summary.lower_yaw_deg:.4f} deg, N {summary.normal_force:.6g} N, "
             f"newton {report.newton_iterations}, contact {report.contact_iterations}",
             level=rr.TextLogLevel.INFO))
         self.stream.flush()
@@ -397,176 +392,3 @@ class Recorder:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-# -- reading back ----------------------------------------------------------------------
-@dataclass(frozen=True)
-class RecordedRun:
-    """What ``pushplan replay`` needs from a recording written by :class:`Recorder`."""
-
-    run_name: str
-    scenario: dict | None
-    steps: np.ndarray  # (n,) step indices
-    commands: tuple[Command, ...]
-    lower_centroid: np.ndarray  # (n, 3) m, cumulative displacement
-
-
-def _column(batch, name: str) -> list:
-    if name not in batch.schema.names:
-        raise ValueError(f"column {name} missing")
-    return batch.column(name).to_pylist()
-
-
-def read_recording(path) -> RecordedRun:
-    """Read the run description and per-step commands of a recording.
-
-    Raises
-    ------
-    ValueError
-        Missing or unreadable file, or an ``.rrd`` not written by :class:`Recorder`.
-    """
-    from rerun.chunk import RrdReader
-
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"recording not found: {path}")
-    try:
-        chunks = RrdReader(path).stream().filter(content="/run/**").to_chunks()
-    except Exception as exc:  # the bindings raise assorted types for a corrupt file
-        raise ValueError(f"cannot read recording {path}: {exc}") from None
-    info, rows = None, []
-    for chunk in chunks:
-        batch = chunk.to_record_batch()
-        if chunk.entity_path == "/run/info":
-            info = json.loads(_column(batch, "TextDocument:text")[-1][0])
-        elif chunk.entity_path == "/run/step":
-            names = ("step", "dx", "dy", "dz", "dtheta_deg", "lower_centroid")
-            rows.extend(zip(*(_column(batch, n) for n in names)))
-    if info is None:
-        raise ValueError(f"{path} is not a pushplan recording (no run/info)")
-    rows.sort(key=lambda r: r[0])
-    commands = tuple(Command(dx[0], dy[0], dz[0], math.radians(dt[0])) for _, dx, dy, dz, dt, _ in rows)
-    return RecordedRun(
-        run_name=info["run_name"],
-        scenario=info["scenario"],
-        steps=np.array([r[0] for r in rows], dtype=np.int64),
-        commands=commands,
-        lower_centroid=np.array([r[5] for r in rows], dtype=float).reshape(-1, 3),
-    )
-
-
-def scenario_from_dict(spec: dict):
-    """Rebuild a :class:`pushplan.scenario.Scenario` from its ``to_dict()`` form."""
-    from .scenario import Scenario
-
-    try:
-        return Scenario(
-            name=str(spec["name"]),
-            description=str(spec.get("description", "")),
-            size=tuple(float(v) for v in spec["block"]["size"]),
-            elements=tuple(int(v) for v in spec["block"]["elements"]),
-            quadrature=int(spec["block"]["quadrature"]),
-            young=float(spec["material"]["young"]),
-            poisson=float(spec["material"]["poisson"]),
-            mu_x=float(spec["friction"]["mu_x"]),
-            mu_y=float(spec["friction"]["mu_y"]),
-            angle_deg=float(spec["friction"].get("angle_deg", 0.0)),
-            commands=tuple(Command(c["dx"], c["dy"], c["dz"], math.radians(c["dtheta_deg"])) for c in spec["load"]),
-            solver=SolverOptions(**spec.get("solver", {})),
-        )
-    except (KeyError, TypeError) as exc:
-        raise ValueError(f"stored scenario is incomplete: {exc}") from None
-
-
-# -- CLI -------------------------------------------------------------------------------
-def lower_face_deviation(reference: np.ndarray, other: np.ndarray) -> np.ndarray:
-    """Per-step distance (m) between two lower-face centroid trajectories (n, 3),
-    over their common length."""
-    n = min(len(reference), len(other))
-    return np.linalg.norm(np.asarray(reference, float)[:n] - np.asarray(other, float)[:n], axis=1)
-
-
-def cmd_replay(args) -> int:
-    from .cli import CliError, simulation_exit_status
-    from .io import atomic_write_json, prepare_output_dir
-    from .plan_io import load_commands
-    from .scenario import load_scenario
-    from .simulate import simulate
-
-    source = Path(args.file)
-    if source.suffix == ".rrd":
-        original = read_recording(source)
-        commands = list(original.commands)
-    elif source.suffix == ".json":
-        commands = load_commands(source)
-        sibling = source.parent / RECORDING_FILE
-        original = read_recording(sibling) if sibling.is_file() else None
-    else:
-        raise CliError(f"replay needs a plan .json or a .rrd recording, got {source}")
-    if not commands:
-        raise CliError(f"{source} holds no commands")
-    if args.scenario is not None:
-        scenario = load_scenario(args.scenario)
-    elif original is not None and original.scenario is not None:
-        scenario = scenario_from_dict(original.scenario)
-    else:
-        raise CliError(f"no scenario stored with {source}: pass --scenario")
-    out = prepare_output_dir(args.out)
-    result = simulate(scenario, out, commands=commands, recording=False, progress=not args.quiet)
-    run_name = f"{scenario.name}-replay"
-    with Recorder(out / RECORDING_FILE, run_name, result.model.mesh, field=args.field,
-                  scenario=result.summary["scenario"]) as rec:
-        for rep, summ in zip(result.reports, result.summary["steps"]):
-            rec.log_step(rep, summ)
-        if not result.completed:
-            rec.log_step(result.reports[-1])
-    replayed = np.array([s["lower_centroid"] for s in result.summary["steps"]], float).reshape(-1, 3)
-    report = {"source": str(source), "scenario": scenario.name, "steps_replayed": len(replayed),
-              "reference": None, "max_deviation_m": None, "deviation_m": None}
-    print(f"replayed {len(replayed)} of {len(commands)} steps of {source} with scenario {scenario.name} "
-          f"(mu_x = {scenario.mu_x}, mu_y = {scenario.mu_y}); wrote {out / RECORDING_FILE}")
-    if original is not None and len(original.lower_centroid):
-        dev = lower_face_deviation(original.lower_centroid, replayed)
-        report.update(reference=original.run_name, max_deviation_m=float(dev.max()), deviation_m=dev)
-        k = int(dev.argmax())
-        print(f"max lower-face deviation from {original.run_name}: {dev.max():.6e} m "
-              f"({dev.max() * 1e6:.4f} um, step {k + 1} of {len(dev)} compared)")
-    else:
-        print("no original trajectory to compare with (no recording.rrd next to the plan)")
-    atomic_write_json(out / "replay.json", report)
-    return simulation_exit_status(result)
-
-
-def cmd_view(args) -> int:
-    from .cli import CliError
-
-    path = Path(args.file)
-    if not path.is_file():
-        raise CliError(f"recording not found: {path}")
-    exe = shutil.which("rerun") or shutil.which("rerun", path=str(Path(sys.executable).parent))
-    has_display = sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or
-                                                               os.environ.get("WAYLAND_DISPLAY"))
-    if exe and has_display:
-        import subprocess
-
-        subprocess.Popen([exe, str(path)], start_new_session=True)
-        print(f"opened {path} in the rerun viewer")
-        return 0
-    reason = "no display" if exe else "no rerun viewer on PATH"
-    print(f"{reason}: open the recording with `rerun {path}` on a machine with a display "
-          f"(pip install rerun-sdk), or drag it onto https://rerun.io/viewer")
-    return 0
-
-
-def register(subparsers) -> None:
-    """Add the ``replay`` and ``view`` subcommands."""
-    p = subparsers.add_parser("replay", help="re-execute the commands of a plan.json or recording.rrd")
-    p.add_argument("file", help="plan .json (its folder's recording.rrd is the reference) or .rrd")
-    p.add_argument("--scenario", help="scenario TOML to replay with (default: the one stored in the recording)")
-    p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz, recording.rrd, replay.json)")
-    p.add_argument("--field", default="slip", choices=tuple(FIELDS), help="block colour field")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_replay)
-    p = subparsers.add_parser("view", help="open a recording in the rerun viewer")
-    p.add_argument("file", help=".rrd recording")
-    p.set_defaults(func=cmd_view)

@@ -49,9 +49,11 @@ import numpy as np
 
 from fe_contact import Command, Model, State, StepReport, initial_state, step
 
-from .plan_io import commands_to_json
+from ..config.commands import commands_to_list as commands_to_json
 from .reduced_model import PushParameters, calibrate, simulate_reduced
-from .scenario import Scenario, ScenarioError, _integer, _number, _triple
+from ..config.scenario import Scenario, ScenarioError
+from ..config.validate import integer as _integer, number as _number, triple as _triple
+from ..errors import SolverFailure
 
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
@@ -71,7 +73,7 @@ NO_PROGRESS = 0.1
 """An infeasible plan stops when the error changes by less than this fraction of the tolerance."""
 
 
-class PlanningError(RuntimeError):
+class PlanningError(SolverFailure):
     """An FE rollout failed (the step report's status and message are quoted)."""
 
 
@@ -677,7 +679,8 @@ def plan_document(result: PlanResult) -> dict:
 
 def write_recording(result: PlanResult, path, verification_model: Model) -> None:
     """``recording.rrd``: the verified FE rollout (press and plan) and the plan overlays."""
-    from .recording import Recorder
+    from ..outputs.recording import Recorder
+    from ..run.summary import StepSummary
 
     spec = result.spec
     cost = [it["objective"] for it in result.iterations]
@@ -685,7 +688,7 @@ def write_recording(result: PlanResult, path, verification_model: Model) -> None
     resolved["load"] = plan_commands_json(result)
     with Recorder(path, f"plan_{result.scenario.name}", verification_model.mesh, scenario=resolved) as rec:
         for rep in (*result.press_reports, *result.verified.reports):
-            rec.log_step(rep)
+            rec.log_step(rep, StepSummary.from_report(rep))
         dims = 3 if spec.yaw_targeted else 2
         rec.log_plan(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
                      verified=result.verified.lower[:, :dims], naive=result.naive.lower[:, :dims], cost=cost)
@@ -693,9 +696,9 @@ def write_recording(result: PlanResult, path, verification_model: Model) -> None
 
 # -- CLI ----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
-    from .cli import EXIT_SOLVER_FAILURE
-    from .io import atomic_write_json, prepare_output_dir
-    from .scenario import load_scenario
+    from ..errors import EXIT_SOLVER_FAILURE
+    from ..outputs.atomic import atomic_write_json, prepare_output_dir
+    from ..config.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
     spec = parse_plan(scenario)

@@ -42,8 +42,9 @@ import numpy as np
 
 from fe_contact import Command, Model, SolverOptions, State, StepReport, initial_state, step
 
-from .io import atomic_write_bytes, atomic_write_json, atomic_write_npz
-from .scenario import Scenario, load_scenario
+from ..errors import InputError
+from ..outputs.atomic import atomic_write_bytes, atomic_write_json, atomic_write_npz
+from ..config.scenario import Scenario, load_scenario
 
 if TYPE_CHECKING:  # pragma: no cover
     import mujoco
@@ -201,7 +202,7 @@ def _find(m, objtype, name: str, what: str) -> int:
         return int(name[1:])
     i = _mujoco().mj_name2id(m, objtype, name)
     if i < 0:
-        raise ValueError(f"{what} {name!r} not found in the MJCF model")
+        raise InputError(f"{what} {name!r} not found in the MJCF model")
     return i
 
 
@@ -212,11 +213,11 @@ def _block_ids(m, block: str) -> tuple[int, int]:
         return int(m.geom_bodyid[gid]), gid
     bid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, block)
     if bid < 0:
-        raise ValueError(f"block {block!r} is neither a body nor a geom of the MJCF model")
+        raise InputError(f"block {block!r} is neither a body nor a geom of the MJCF model")
     geoms = np.flatnonzero(m.geom_bodyid == bid)
     boxes = geoms[m.geom_type[geoms] == mj.mjtGeom.mjGEOM_BOX]
     if boxes.size != 1:
-        raise ValueError(f"block body {block!r} must hold exactly one box geom, it holds {boxes.size}")
+        raise InputError(f"block body {block!r} must hold exactly one box geom, it holds {boxes.size}")
     return bid, int(boxes[0])
 
 
@@ -226,11 +227,11 @@ def _load_model(source) -> tuple[Any, str]:
         return source, ""
     path = Path(source)
     if not path.is_file():
-        raise ValueError(f"MJCF file not found: {path}")
+        raise InputError(f"MJCF file not found: {path}")
     try:
         return mj.MjModel.from_xml_path(str(path)), str(path)
     except ValueError as exc:
-        raise ValueError(f"cannot load MJCF {path}: {exc}") from None
+        raise InputError(f"cannot load MJCF {path}: {exc}") from None
 
 
 def _material(m, base: Scenario | None, from_mjcf: dict, not_from: dict) -> tuple[float, float]:
@@ -242,20 +243,20 @@ def _material(m, base: Scenario | None, from_mjcf: dict, not_from: dict) -> tupl
             data = None
         if data is not None:
             if data.size != 1 or not np.isfinite(data[0]):
-                raise ValueError(f"<numeric name={numeric!r}> must hold one finite number, got {data.tolist()}")
+                raise InputError(f"<numeric name={numeric!r}> must hold one finite number, got {data.tolist()}")
             out[key] = float(data[0])
             from_mjcf[f"material.{key}"] = f"<numeric name='{numeric}'>"
         elif base is not None:
             out[key] = getattr(base, key)
             not_from[f"material.{key}"] = "scenario"
         else:
-            raise ValueError(
+            raise InputError(
                 f"material.{key}: the MJCF has no <numeric name={numeric!r}> and no scenario was given"
             )
     if out["young"] <= 0:
-        raise ValueError(f"{NUMERIC_YOUNG} must be > 0, got {out['young']}")
+        raise InputError(f"{NUMERIC_YOUNG} must be > 0, got {out['young']}")
     if not -1.0 < out["poisson"] < 0.5:
-        raise ValueError(f"{NUMERIC_POISSON} must be in (-1, 0.5), got {out['poisson']}")
+        raise InputError(f"{NUMERIC_POISSON} must be in (-1, 0.5), got {out['poisson']}")
     return out["young"], out["poisson"]
 
 
@@ -265,7 +266,7 @@ def _friction(m, d, bgeom: int, fgeom: int, yaw: float, notes: list) -> tuple[fl
     geoms = np.sort(np.asarray(d.contact.geom[: d.ncon]).reshape(-1, 2), axis=1)
     mine = np.flatnonzero((geoms == sorted((bgeom, fgeom))).all(axis=1))
     if mine.size == 0:
-        raise ValueError(
+        raise InputError(
             f"block geom {_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} does not touch floor "
             f"{_name(m, mj.mjtObj.mjOBJ_GEOM, fgeom)!r} at qpos0; rest the block on the floor"
         )
@@ -273,10 +274,10 @@ def _friction(m, d, bgeom: int, fgeom: int, yaw: float, notes: list) -> tuple[fl
     fric = np.asarray(d.contact.friction[: d.ncon])[mine]
     dims = np.asarray(d.contact.dim[: d.ncon])[mine]
     if np.ptp(frames, axis=0).max() > FRAME_TOL or np.ptp(fric, axis=0).max() > FRAME_TOL or np.ptp(dims) > 0:
-        raise ValueError("the block-floor contacts disagree on frame, friction or condim")
+        raise InputError("the block-floor contacts disagree on frame, friction or condim")
     frame, f, dim = frames[0], fric[0], int(dims[0])
     if abs(abs(frame[0, 2]) - 1.0) > VERTICAL_TOL:
-        raise ValueError(f"block-floor contact normal {frame[0].tolist()} is not vertical; the FE plane is z = 0")
+        raise InputError(f"block-floor contact normal {frame[0].tolist()} is not vertical; the FE plane is z = 0")
     pairs = [i for i in range(m.npair) if sorted((m.pair_geom1[i], m.pair_geom2[i])) == sorted((bgeom, fgeom))]
     pair = (_name(m, mj.mjtObj.mjOBJ_PAIR, pairs[0])) if pairs else None
     if pair is None:
@@ -332,17 +333,17 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
     bbody, bgeom = _block_ids(m, block)
     fgeom = _find(m, mj.mjtObj.mjOBJ_GEOM, floor, "floor geom")
     if m.geom_type[bgeom] != mj.mjtGeom.mjGEOM_BOX:
-        raise ValueError(f"block geom {_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} must be a box")
+        raise InputError(f"block geom {_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} must be a box")
     if m.geom_type[fgeom] != mj.mjtGeom.mjGEOM_PLANE:
-        raise ValueError(f"floor geom {floor!r} must be a plane")
+        raise InputError(f"floor geom {floor!r} must be a plane")
     d = mj.MjData(m)
     mj.mj_forward(m, d)
     Rf = d.geom_xmat[fgeom].reshape(3, 3)
     if abs(Rf[2, 2] - 1.0) > VERTICAL_TOL:
-        raise ValueError(f"floor {floor!r} normal {Rf[:, 2].tolist()} is not world +z")
+        raise InputError(f"floor {floor!r} normal {Rf[:, 2].tolist()} is not world +z")
     Rb = d.geom_xmat[bgeom].reshape(3, 3)
     if abs(abs(Rb[2, 2]) - 1.0) > VERTICAL_TOL:
-        raise ValueError(f"block geom z axis {Rb[:, 2].tolist()} is not vertical; stand the box upright")
+        raise InputError(f"block geom z axis {Rb[:, 2].tolist()} is not vertical; stand the box upright")
     size = tuple(float(2 * v) for v in m.geom_size[bgeom])
     yaw = _yaw_of(Rb)
     lower = d.geom_xpos[bgeom] - np.array([0.0, 0.0, size[2] / 2])
@@ -411,33 +412,33 @@ class BridgeSettings:
         for key in ("control_period", "force_factor"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"mujoco.{key} must be a number > 0, got {v!r}")
+                raise InputError(f"mujoco.{key} must be a number > 0, got {v!r}")
         v = self.settle_time
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise ValueError(f"mujoco.settle_time must be a number >= 0, got {v!r}")
+            raise InputError(f"mujoco.settle_time must be a number >= 0, got {v!r}")
         if self.force_factor <= 1.0:
-            raise ValueError(f"mujoco.force_factor must be > 1 (above the sliding threshold), got {self.force_factor}")
+            raise InputError(f"mujoco.force_factor must be > 1 (above the sliding threshold), got {self.force_factor}")
         pts = self.flex_points
         if (not isinstance(pts, (list, tuple)) or len(pts) != 3
                 or any(isinstance(p, bool) or not isinstance(p, int) or p < 2 for p in pts)):
-            raise ValueError(f"mujoco.flex_points must be 3 integers >= 2, got {pts!r}")
+            raise InputError(f"mujoco.flex_points must be 3 integers >= 2, got {pts!r}")
         object.__setattr__(self, "flex_points", tuple(pts))
         if self.flex_mu is not None and (
             isinstance(self.flex_mu, bool) or not isinstance(self.flex_mu, (int, float)) or self.flex_mu < 0
         ):
-            raise ValueError(f"mujoco.flex_mu must be a number >= 0, got {self.flex_mu!r}")
+            raise InputError(f"mujoco.flex_mu must be a number >= 0, got {self.flex_mu!r}")
         for key in ("scene", "block", "floor", "gripper"):
             if not isinstance(getattr(self, key), str):
-                raise ValueError(f"mujoco.{key} must be a string, got {getattr(self, key)!r}")
+                raise InputError(f"mujoco.{key} must be a string, got {getattr(self, key)!r}")
 
 
 def bridge_settings(table: dict) -> BridgeSettings:
     """Validate a ``[mujoco]`` table (unknown keys raise ValueError naming them)."""
     if not isinstance(table, dict):
-        raise ValueError(f"mujoco must be a table, got {table!r}")
+        raise InputError(f"mujoco must be a table, got {table!r}")
     for k in table:
         if k not in MUJOCO_KEYS:
-            raise ValueError(f"unknown key mujoco.{k} (allowed: {', '.join(sorted(MUJOCO_KEYS))})")
+            raise InputError(f"unknown key mujoco.{k} (allowed: {', '.join(sorted(MUJOCO_KEYS))})")
     return BridgeSettings(**table)
 
 
@@ -452,15 +453,15 @@ def open_scene(path, block: str | None = None, floor: str | None = None) -> tupl
     if path.suffix.lower() == ".toml":
         base = load_scenario(path)
         if "mujoco" not in base.extra:
-            raise ValueError(f"{path} has no [mujoco] table naming the MJCF scene")
+            raise InputError(f"{path} has no [mujoco] table naming the MJCF scene")
         settings = bridge_settings(base.extra["mujoco"])
         if not settings.scene:
-            raise ValueError(f"{path}: missing key mujoco.scene")
+            raise InputError(f"{path}: missing key mujoco.scene")
         xml = path.parent / settings.scene
     elif path.suffix.lower() in (".xml", ".mjcf"):
         base, settings, xml = None, BridgeSettings(scene=str(path)), path
     else:
-        raise ValueError(f"scene must be a .toml scenario or an .xml MJCF file, got {path}")
+        raise InputError(f"scene must be a .toml scenario or an .xml MJCF file, got {path}")
     scene = scene_from_mjcf(xml, block=block or settings.block, floor=floor or settings.floor, base=base)
     return scene, settings
 
@@ -498,7 +499,7 @@ def _gripper_frame(m, d, name: str) -> tuple[str, int, np.ndarray, np.ndarray]:
     sid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_SITE, name)
     if sid >= 0:
         return "site", sid, d.site_xpos[sid].copy(), d.site_xmat[sid].reshape(3, 3).copy()
-    raise ValueError(f"gripper {name!r} is neither a body nor a site of the MJCF model")
+    raise InputError(f"gripper {name!r} is neither a body nor a site of the MJCF model")
 
 
 def gripper_trajectory(scene: MjcfScene, mj_model, commands: Sequence[Command], gripper: str = "gripper",
@@ -516,13 +517,13 @@ def gripper_trajectory(scene: MjcfScene, mj_model, commands: Sequence[Command], 
     """
     mj = _mujoco()
     if not (isinstance(control_period, (int, float)) and math.isfinite(control_period) and control_period > 0):
-        raise ValueError(f"control_period must be > 0 s, got {control_period!r}")
+        raise InputError(f"control_period must be > 0 s, got {control_period!r}")
     bid = mj.mj_name2id(mj_model, mj.mjtObj.mjOBJ_BODY, gripper)
     if bid < 0 or mj_model.body_mocapid[bid] < 0:
-        raise ValueError(f"gripper {gripper!r} must be a mocap body to follow a command list")
+        raise InputError(f"gripper {gripper!r} must be a mocap body to follow a command list")
     for i, c in enumerate(commands):
         if not isinstance(c, Command):
-            raise ValueError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
+            raise InputError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
     p0 = np.array(mj_model.body_pos[bid], float)
     q0 = np.array(mj_model.body_quat[bid], float)
     R0 = np.zeros(9)
@@ -550,10 +551,10 @@ def export_plan(path, scene: MjcfScene, commands: Sequence[Command], gripper: st
     """
     path = Path(path)
     if path.suffix.lower() not in (".npz", ".xml"):
-        raise ValueError(f"plan export must be .npz or .xml, got {path.name}")
+        raise InputError(f"plan export must be .npz or .xml, got {path.name}")
     m, _ = _load_model(scene.source) if scene.source else (None, "")
     if m is None:
-        raise ValueError("export_plan needs a scene imported from an MJCF file")
+        raise InputError("export_plan needs a scene imported from an MJCF file")
     traj = gripper_trajectory(scene, m, commands, gripper, control_period)
     if path.suffix.lower() == ".npz":
         return atomic_write_npz(
@@ -614,13 +615,13 @@ class CoSimulation:
         mj = _mujoco()
         if not (isinstance(control_period, (int, float)) and math.isfinite(control_period)
                 and control_period >= mj_model.opt.timestep):
-            raise ValueError(
+            raise InputError(
                 f"control_period must be >= the MuJoCo timestep {mj_model.opt.timestep}, got {control_period!r}")
         self.mj_model, self.mj_data, self.scene = mj_model, mj_data, scene
         self.model = fe_model or scene.scenario.model()
         extent = np.ptp(self.model.mesh.nodes, axis=0)
         if not np.allclose(extent, scene.scenario.size, rtol=1e-9):
-            raise ValueError(
+            raise InputError(
                 f"fe_model block size {extent.tolist()} differs from the MJCF box {list(scene.scenario.size)}")
         self.state: State = initial_state(self.model)
         self.reports: list[StepReport] = []
@@ -631,7 +632,7 @@ class CoSimulation:
         if self._mocap < 0:
             jnt = int(mj_model.body_jntadr[bid])
             if mj_model.body_jntnum[bid] != 1 or mj_model.jnt_type[jnt] != mj.mjtJoint.mjJNT_FREE:
-                raise ValueError(f"block body {scene.block_body!r} must have one free joint or be a mocap body")
+                raise InputError(f"block body {scene.block_body!r} must have one free joint or be a mocap body")
             self._qadr, self._vadr = int(mj_model.jnt_qposadr[jnt]), int(mj_model.jnt_dofadr[jnt])
         mj.mj_kinematics(mj_model, mj_data)
         self._gripper = gripper
@@ -721,11 +722,11 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
     mj = _mujoco()
     m, _ = _load_model(scene.source) if scene.source else (None, "")
     if m is None:
-        raise ValueError("run_cosimulation needs a scene imported from an MJCF file")
+        raise InputError("run_cosimulation needs a scene imported from an MJCF file")
     traj = gripper_trajectory(scene, m, commands, gripper, control_period)
     n_sub = int(round(control_period / m.opt.timestep))
     if n_sub < 1 or abs(n_sub * m.opt.timestep - control_period) > 1e-9 * control_period:
-        raise ValueError(f"control_period {control_period} must be a multiple of the MuJoCo timestep {m.opt.timestep}")
+        raise InputError(f"control_period {control_period} must be a multiple of the MuJoCo timestep {m.opt.timestep}")
     d = mj.MjData(m)
     mj.mj_forward(m, d)
     coupler = CoSimulation(m, d, scene, gripper, control_period, fe_model)
@@ -773,11 +774,12 @@ def _save_rerun(path: Path, model: Model, scene: MjcfScene, reports: list[StepRe
     in the recorder's frame (the FE frame: lower face centred on the origin)."""
     import rerun as rr
 
-    from .recording import Recorder
+    from ..outputs.recording import Recorder
+    from ..run.summary import StepSummary
 
     with Recorder(path, f"cosim_{scene.scenario.name}", model.mesh, scenario=scene.scenario.to_dict()) as rec:
         for rep, (drive, low, yaw) in zip(reports, frames):
-            rec.log_step(rep)
+            rec.log_step(rep, StepSummary.from_report(rep))
             rec.stream.log("mujoco/gripper_centre", rr.Points3D([scene.to_fe(drive - scene.lower_centre)]))
             rec.stream.log("mujoco/block_lower_centre", rr.Points3D([scene.to_fe(low - scene.lower_centre)]))
             rec.stream.log("plots/mujoco_yaw_deg", rr.Scalars(math.degrees(yaw - scene.yaw)))
@@ -992,12 +994,12 @@ def compare(scene: MjcfScene, commands: Sequence[Command] | None = None, setting
     settings = settings or BridgeSettings(scene=scene.source)
     commands = tuple(scene.scenario.commands if commands is None else commands)
     if not commands:
-        raise ValueError("no commands: give a command list or a scenario with [[load]] steps")
+        raise InputError("no commands: give a command list or a scenario with [[load]] steps")
     unknown = [name for name in models if name not in MODEL_NOTES]
     if unknown:
-        raise ValueError(f"unknown comparison model {unknown[0]!r} (known: {', '.join(MODEL_NOTES)})")
+        raise InputError(f"unknown comparison model {unknown[0]!r} (known: {', '.join(MODEL_NOTES)})")
     if not scene.source:
-        raise ValueError("compare needs a scene imported from an MJCF file")
+        raise InputError("compare needs a scene imported from an MJCF file")
     m, _ = _load_model(scene.source)
     traj = gripper_trajectory(scene, m, commands, settings.gripper, settings.control_period)
     n_move = max(1, int(round(settings.control_period / m.opt.timestep)))
@@ -1071,11 +1073,11 @@ def _cli_scene(args) -> tuple[MjcfScene, BridgeSettings]:
 
 def _cli_commands(args, scene: MjcfScene) -> tuple[Command, ...]:
     if getattr(args, "commands", None):
-        from .plan_io import load_commands
+        from ..config.commands import load_commands
 
         return tuple(load_commands(args.commands))
     if not scene.scenario.commands:
-        raise ValueError("no commands: give --commands plan.json or a scenario TOML with [[load]] steps")
+        raise InputError("no commands: give --commands plan.json or a scenario TOML with [[load]] steps")
     return scene.scenario.commands
 
 
@@ -1101,7 +1103,7 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from .io import prepare_output_dir
+    from ..outputs.atomic import prepare_output_dir
 
     scene, settings = _cli_scene(args)
     commands = _cli_commands(args, scene)
@@ -1128,7 +1130,7 @@ def _cmd_compare(args) -> int:
 def _cmd_cosim(args) -> int:
     import sys
 
-    from .io import prepare_output_dir
+    from ..outputs.atomic import prepare_output_dir
 
     scene, settings = _cli_scene(args)
     commands = _cli_commands(args, scene)

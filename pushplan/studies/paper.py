@@ -36,13 +36,17 @@ import numpy as np
 from fe_contact import Model, NodeStatus, StepReport
 from fe_contact.model import LOCAL_METHODS
 
-from .io import atomic_write_bytes, atomic_write_json, prepare_output_dir
-from .scenario import MAX_ELEMENTS, Scenario, load_scenario
-from .simulate import SimulationResult, simulate, step_summary
+from ..errors import InputError
+from ..outputs.atomic import atomic_write_bytes, atomic_write_json, prepare_output_dir
+from ..config.scenario import MAX_ELEMENTS, Scenario, load_scenario
+from ..run import Run as SimulationResult
+from ..run import StepSummary, simulate
 
 CASES = ("paper_case1", "paper_case2", "paper_case3")
-SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
-DOCS_FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
+from ..resources import scenario_path
+
+SCENARIO_DIR = scenario_path("")
+DOCS_FIGURES = Path(__file__).resolve().parents[2] / "docs" / "figures"
 MAGNIFICATION = 20.0
 """Factor on the deformation (displacement minus the lower-face mean translation) in fig. 10."""
 CONTOUR_LEVELS = 21
@@ -77,13 +81,13 @@ def case_scenarios(elements=None, quadrature=None, local_method=None) -> list[Sc
         if elements is not None:
             elements = tuple(elements)
             if len(elements) != 3 or any(isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in elements):
-                raise ValueError(f"elements must be three integers >= 1, got {elements!r}")
+                raise InputError(f"elements must be three integers >= 1, got {elements!r}")
             if math.prod(elements) > MAX_ELEMENTS:
-                raise ValueError(f"elements must give at most {MAX_ELEMENTS} hex8, got {elements!r}")
+                raise InputError(f"elements must give at most {MAX_ELEMENTS} hex8, got {elements!r}")
             changes["elements"] = elements
         if quadrature is not None:
             if quadrature not in (2, 3):
-                raise ValueError(f"quadrature must be 2 or 3, got {quadrature!r}")
+                raise InputError(f"quadrature must be 2 or 3, got {quadrature!r}")
             changes["quadrature"] = quadrature
         if local_method is not None:
             changes["solver"] = dataclasses.replace(sc.solver, local_method=local_method)
@@ -96,7 +100,7 @@ def push_direction(scenario: Scenario) -> np.ndarray:
     d = np.array([[c.dx, c.dy] for c in scenario.commands[1:]]).sum(axis=0)
     norm = float(np.hypot(*d))
     if norm == 0.0:
-        raise ValueError(f"scenario {scenario.name} has no in-plane push after its first step")
+        raise InputError(f"scenario {scenario.name} has no in-plane push after its first step")
     return d / norm
 
 
@@ -118,7 +122,7 @@ def node_field(report: StepReport, name: str) -> np.ndarray:
         return report.reaction_local[:, 0]
     if name == "pressure":
         return report.pressure
-    raise ValueError(f"unknown field {name!r} (slip, r_n, pressure)")
+    raise InputError(f"unknown field {name!r} (slip, r_n, pressure)")
 
 
 def _interpolator(model: Model, values: np.ndarray):
@@ -200,7 +204,7 @@ def _extreme(model: Model, values: np.ndarray, mask: np.ndarray, fn) -> tuple[fl
 def step_record(model: Model, report: StepReport, push: np.ndarray) -> dict:
     """:func:`pushplan.simulate.step_summary` plus where the extremes occur (reference
     x, y in m), ``r_n`` extremes and the centroid motion directions (deg)."""
-    rec = step_summary(report)
+    rec = StepSummary.from_report(report).to_dict()
     contact = report.node_status != NodeStatus.SEPARATED
     every = np.ones_like(contact)
     rec["max_slip"], rec["max_slip_at"] = _extreme(model, report.slip, every, np.argmax)
@@ -706,8 +710,8 @@ def run_paper(out, elements=None, quadrature=None, local_method=None, docs_dir=N
     for sc, run in zip(scenarios, runs):
         good = [r for r in run.reports if r.converged]
         cases.append({
-            "name": sc.name, "scenario": run.summary["scenario"], "status": run.summary["status"],
-            "failure": run.summary["failure"], "elapsed_s": run.summary["elapsed_s"],
+            "name": sc.name, "scenario": run.summary.scenario, "status": run.summary.status.value,
+            "failure": run.summary.to_dict()["failure"], "elapsed_s": run.summary.elapsed_s,
             "steps": [step_record(run.model, r, push) for r in good],
         })
         if good:
@@ -746,7 +750,7 @@ def run_paper(out, elements=None, quadrature=None, local_method=None, docs_dir=N
 
 def cmd_paper(args) -> int:
     """``pushplan paper``: exit 0, or 3 when a case's solver fails (report keeps the finished steps)."""
-    from .cli import EXIT_SOLVER_FAILURE
+    from ..errors import EXIT_SOLVER_FAILURE
 
     report = run_paper(
         args.out, elements=args.elements, quadrature=args.quadrature, local_method=args.local_method,
