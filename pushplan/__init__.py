@@ -9,11 +9,22 @@
 ``mujoco``     MJCF import, co-simulation, comparison, export
 ``studies``    the paper reproduction, parameter sweeps
 ``cli``        one thin module per command
+
+The names below are imported on first use, so ``import pushplan.cli`` stays cheap.
 """
 
-from .config import Scenario, ScenarioError, load_scenario, parse_scenario
-from .run import Run, simulate
+import importlib
 
-SimulationResult = Run  # the name earlier versions exported
+_EXPORTS = {
+    "Scenario": "pushplan.config", "ScenarioError": "pushplan.config", "load_scenario": "pushplan.config",
+    "parse_scenario": "pushplan.config", "InputError": "pushplan.errors", "SolverFailure": "pushplan.errors",
+    "Run": "pushplan.run", "simulate": "pushplan.run",
+}
 
-__all__ = ["Run", "Scenario", "ScenarioError", "SimulationResult", "load_scenario", "parse_scenario", "simulate"]
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'pushplan' has no attribute {name!r}")

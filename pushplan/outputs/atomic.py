@@ -32,6 +32,12 @@ def reserve_temporary(path) -> Path:
             continue
 
 
+def commit_temporary(tmp, path) -> Path:
+    """Move a finished temporary (from :func:`reserve_temporary`) into place."""
+    os.replace(tmp, path)
+    return Path(path)
+
+
 def atomic_write_bytes(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically; returns the path."""
     path = Path(path)
@@ -39,11 +45,10 @@ def atomic_write_bytes(path, data: bytes) -> Path:
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
-        os.replace(tmp, path)
+        return commit_temporary(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    return path
 
 
 def _json_default(obj):

@@ -73,7 +73,7 @@ from fe_contact import BlockMesh, StepReport
 from fe_contact.mesh import surface_quads
 
 from ..config.commands import command_to_dict
-from .atomic import reserve_temporary
+from .atomic import commit_temporary, reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
 APPLICATION_ID = "pushplan"
@@ -275,48 +275,57 @@ class Recorder:
             return
         if summary is None or summary.step != report.step_index:
             raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
-        mesh = self.mesh
         self._travel += math.sqrt(c.dx**2 + c.dy**2 + c.dz**2)
         self._set_step(report.step_index)
-        log = self.stream.log
+        deformed = self.mesh.nodes + report.displacement
+        legend = [self._log_block(report, deformed), self._log_trajectories(report),
+                  self._log_contact(report, deformed)]
+        self.stream.log("legend", rr.TextDocument(f"## step {report.step_index}\n\n" + "\n\n".join(legend),
+                                                  media_type=rr.MediaType.MARKDOWN))
+        self._log_numbers(report, summary)
+        self.stream.flush()
 
-        # block surface coloured by the chosen lower-face field
+    def _log_block(self, report: StepReport, deformed: np.ndarray) -> str:
+        """Block surface coloured by the chosen lower-face field; returns its legend line."""
+        rr = self._rr
         name, unit, factor = FIELDS[self.field]
         values = np.asarray(getattr(report, self.field), float)
         vmax = float(values.max()) if values.size else 0.0
         on_lower = self._surface_lower >= 0
         colours = np.broadcast_to(_GREY, (self._surface_nodes.size, 3)).copy()
         colours[on_lower] = colormap(values[self._surface_lower[on_lower]], vmax)
-        deformed = mesh.nodes + report.displacement
         positions = deformed[self._surface_nodes]
-        log("world/block", rr.Mesh3D.from_fields(
+        self.stream.log("world/block", rr.Mesh3D.from_fields(
             vertex_positions=positions, vertex_normals=vertex_normals(positions, self._triangles),
             vertex_colors=colours))
+        return (f"**block colour**: {name} on the lower face, viridis from 0 {unit} (dark blue) to "
+                f"{vmax * factor:.6g} {unit} (yellow); other faces grey.")
 
-        # centroid trajectories
+    def _log_trajectories(self, report: StepReport) -> str:
+        rr = self._rr
         self._lower_traj.append(self._lower_ref + np.asarray(report.lower_centroid))
         self._upper_traj.append(self._upper_ref + np.asarray(report.upper_centroid))
         for face, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
-            log(f"world/{face}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
+            self.stream.log(f"world/{face}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
+        return "**lines**: centroid trajectories of the upper and lower faces."
 
-        # contact forces and node status
+    def _log_contact(self, report: StepReport, deformed: np.ndarray) -> str:
+        """Contact force arrows and node status points; returns their legend lines."""
+        rr = self._rr
         forces = np.asarray(report.reaction_world, float)
         fmax = float(np.linalg.norm(forces, axis=1).max()) if forces.size else 0.0
-        scale = 0.5 * mesh.size[2] / fmax if fmax > 0 else 0.0
-        origins = deformed[mesh.lower]
-        log("world/contact", rr.Arrows3D(origins=origins, vectors=forces * scale),
-            rr.Points3D(origins, class_ids=np.asarray(report.node_status, np.uint16),
-                        radii=rr.Radius.ui_points(3.0)))
-        log("legend", rr.TextDocument(
-            f"## step {report.step_index}\n\n"
-            f"**block colour**: {name} on the lower face, viridis from 0 {unit} (dark blue) to "
-            f"{vmax * factor:.6g} {unit} (yellow); other faces grey.\n\n"
-            f"**contact arrows**: force on the block, {scale * 1e3:.6g} mm per N "
-            f"(longest {fmax:.6g} N).\n\n"
-            f"**contact points**: green stick, orange slip, grey separated.",
-            media_type=rr.MediaType.MARKDOWN))
+        scale = 0.5 * self.mesh.size[2] / fmax if fmax > 0 else 0.0
+        origins = deformed[self.mesh.lower]
+        self.stream.log("world/contact", rr.Arrows3D(origins=origins, vectors=forces * scale),
+                        rr.Points3D(origins, class_ids=np.asarray(report.node_status, np.uint16),
+                                    radii=rr.Radius.ui_points(3.0)))
+        return (f"**contact arrows**: force on the block, {scale * 1e3:.6g} mm per N "
+                f"(longest {fmax:.6g} N).\n\n"
+                f"**contact points**: green stick, orange slip, grey separated.")
 
-        # plots
+    def _log_numbers(self, report: StepReport, summary) -> None:
+        """Plots, the replayable ``run/step`` row and the log line."""
+        rr, c, log = self._rr, report.command, self.stream.log
         for p in _PLOTS:
             log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(getattr(summary, p), float))))
         log("run/step", rr.AnyValues(
@@ -329,7 +338,6 @@ class Recorder:
             f"lower yaw {summary.lower_yaw_deg:.4f} deg, N {summary.normal_force:.6g} N, "
             f"newton {report.newton_iterations}, contact {report.contact_iterations}",
             level=rr.TextLogLevel.INFO))
-        self.stream.flush()
 
     # -- plans -------------------------------------------------------------------------
     def log_plan(self, target=None, predicted=None, verified=None, naive=None, cost=None) -> None:
@@ -384,7 +392,7 @@ class Recorder:
             self._closed = True
             self.stream.flush()
             self.stream.disconnect()
-            os.replace(self._tmp, self.path)
+            commit_temporary(self._tmp, self.path)
         return self.path
 
     def __enter__(self) -> Recorder:

@@ -11,7 +11,7 @@ import numpy as np
 
 from fe_contact import Command
 
-from ..config.commands import command_from_dict
+from ..config.commands import COMMAND_KEYS, command_from_dict
 from ..errors import InputError
 
 
@@ -60,8 +60,8 @@ def read_recording(path) -> RecordedRun:
     if info is None:
         raise InputError(f"{path} is not a pushplan recording (no run/info)")
     rows.sort(key=lambda r: r[0])
-    commands = tuple(command_from_dict({"dx": dx[0], "dy": dy[0], "dz": dz[0], "dtheta_deg": dt[0]}, f"step {k}")
-                     for k, dx, dy, dz, dt, _ in rows)
+    commands = tuple(command_from_dict(dict(zip(COMMAND_KEYS, (v[0] for v in row[1:5]))), f"step {row[0]}")
+                     for row in rows)
     return RecordedRun(
         run_name=info["run_name"],
         scenario=info["scenario"],

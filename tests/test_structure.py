@@ -1,0 +1,120 @@
+"""The package's shape (issue 18), checked on the source: layers import only
+downwards, no import cycle, one FE driving loop, one atomic writer, one command
+codec, small modules and functions."""
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 80
+# pushplan's layers, lowest first; a module may import from its own layer and those before it
+LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "mujoco", "studies", "cli")
+PEERS = {"studies": {"planning"}, "mujoco": {"planning"}}  # sideways imports allowed
+
+
+def modules(package: str):
+    return sorted((ROOT / package).rglob("*.py"))
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports, at any depth of its code."""
+    here = module_name(path).split(".")
+    package = here if path.name == "__init__.py" else here[:-1]
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            mod = ".".join([*base, *(node.module.split(".") if node.module else [])])
+            names.add(mod)
+            names.update(f"{mod}.{a.name}" for a in node.names)  # from pkg import submodule
+    return names
+
+
+def layer(name: str) -> str | None:
+    parts = name.split(".")
+    return parts[1] if parts[0] == "pushplan" and len(parts) > 1 else None
+
+
+def test_layers_import_only_downwards():
+    wrong = []
+    for path in modules("pushplan"):
+        own = layer(module_name(path))
+        for name in imported_modules(path):
+            other = layer(name)
+            if own in LAYERS and other in LAYERS:
+                if LAYERS.index(other) > LAYERS.index(own) and other not in PEERS.get(own, ()):
+                    wrong.append(f"{module_name(path)} imports {name}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_fe_contact_imports_nothing_from_pushplan_mujoco_or_rerun():
+    for path in modules("fe_contact"):
+        for name in imported_modules(path):
+            assert name.split(".")[0] not in ("pushplan", "mujoco", "rerun"), (path, name)
+
+
+def test_no_import_cycle():
+    known = {module_name(p): p for p in modules("pushplan")}
+    graph = {m: {n for n in imported_modules(p) if n in known and n != m} for m, p in known.items()}
+    done, stack = set(), []
+
+    def visit(m):
+        if m in stack:
+            raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(m):] + [m]))
+        if m in done:
+            return
+        stack.append(m)
+        for n in graph[m]:
+            if not (m.startswith(n + ".") and n in known):  # a package's submodule importing it
+                visit(n)
+        stack.pop()
+        done.add(m)
+
+    for m in graph:
+        visit(m)
+
+
+@pytest.mark.parametrize("package", ["pushplan", "fe_contact"])
+def test_modules_and_functions_are_small(package):
+    long = []
+    for path in modules(package):
+        text = path.read_text()
+        if len(text.splitlines()) > MAX_MODULE_LINES:
+            long.append(f"{path.relative_to(ROOT)}: {len(text.splitlines())} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
+    assert not long, "\n".join(long)
+
+
+def sources_matching(pattern: str, package="pushplan") -> list[str]:
+    regex = re.compile(pattern)
+    return sorted(str(p.relative_to(ROOT)) for p in modules(package) if regex.search(p.read_text()))
+
+
+def test_one_fe_driving_loop():
+    # only the driver calls fe_contact's step (fe_contact.run is fe_contact's own)
+    assert sources_matching(r"from fe_contact(\.step)? import[^\n]*\bstep\b|fe_contact\.step\(") == [
+        "pushplan/run/driver.py"]
+
+
+def test_one_atomic_writer():
+    assert sources_matching(r"os\.replace\(|mkstemp|NamedTemporaryFile|os\.umask") == ["pushplan/outputs/atomic.py"]
+
+
+def test_one_command_codec():
+    # a Command written out field by field, or built from an array row, only in the codec
+    assert sources_matching(r"[\"']dtheta_deg[\"']\s*:|Command\(dx=float") == ["pushplan/config/commands.py"]
