@@ -1,0 +1,53 @@
+"""Quasi-static 3D FE contact solver: an elastic St Venant-Kirchhoff hex8 block on a
+rigid plane with orthotropic (elliptic) Coulomb friction, solved with the De Saxce
+bi-potential projection and an Uzawa-type loop on the contact nodes
+(Feng, Hjiaj, de Saxce, Mroz, Comput. Mech. 37:349-361, 2006).
+
+Public API::
+
+    model = Model(block_mesh(size, divisions), Material(E, nu), Friction(mu_x, mu_y, angle))
+    state = initial_state(model)
+    state, report = step(model, state, Command(dz=-1e-4))
+
+This package knows nothing about planning, robots, MuJoCo or rerun.
+"""
+
+from .elasticity import Material
+from .friction import project_elliptic_cone
+from .local_solver import solve_local
+from .mesh import BlockMesh, block_mesh
+from .model import (
+    Command,
+    Friction,
+    IterLog,
+    Model,
+    NodeStatus,
+    SolverOptions,
+    State,
+    Status,
+    StepReport,
+    build_model,
+    initial_state,
+)
+from .step import run, step
+
+__all__ = [
+    "BlockMesh",
+    "Command",
+    "Friction",
+    "IterLog",
+    "Material",
+    "Model",
+    "NodeStatus",
+    "SolverOptions",
+    "State",
+    "Status",
+    "StepReport",
+    "block_mesh",
+    "build_model",
+    "initial_state",
+    "project_elliptic_cone",
+    "run",
+    "solve_local",
+    "step",
+]

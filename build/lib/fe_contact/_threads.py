@@ -1,0 +1,53 @@
+"""BLAS threads for the large dense kernels of a step.
+
+The multifrontal factorisation of a large tangent (with the flexibility
+matrix) and the local Newton LU are dense BLAS-3 work that two threads run
+about 1.8x faster (measured: LU of the paper case's 1323 x 1323 Newton
+matrix, 62 -> 33 ms); everything else in a step is
+small dense or sparse work that threads slow down, so BLAS is best left at one
+thread (the Makefile exports ``OPENBLAS_NUM_THREADS=1``) and raised only around
+these kernels.
+
+``FE_CONTACT_DENSE_THREADS`` sets the thread count of those kernels; unset, it
+is the number of CPUs this process may use.  Processes that already share the
+cores (``pushplan sweep`` workers, parallel test workers) set it to 1.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import nullcontext
+
+from threadpoolctl import ThreadpoolController
+
+ENV = "FE_CONTACT_DENSE_THREADS"
+MIN_SIZE = 1000
+"""Matrix order from which a second thread pays (measured: 1.2x at 1000, 1.0x at 600)."""
+
+_controller: ThreadpoolController | None = None
+
+
+def dense_threads() -> int:
+    """Threads for the large dense kernels (``FE_CONTACT_DENSE_THREADS`` or the usable CPUs)."""
+    value = os.environ.get(ENV)
+    if value is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"{ENV} must be an integer >= 1, got {value!r}")
+    return n
+
+
+def dense_kernel(size: int):
+    """Context in which BLAS runs on :func:`dense_threads` threads, for a dense
+    kernel of order ``size``; below :data:`MIN_SIZE` it changes nothing."""
+    n = dense_threads()
+    if size < MIN_SIZE or n <= 1:
+        return nullcontext()
+    global _controller
+    if _controller is None:
+        _controller = ThreadpoolController()
+    return _controller.limit(limits=n, user_api="blas")

@@ -1,0 +1,420 @@
+"""Local frictional contact problems in the FCLIB HDF5 format (Siconos / LMGC90).
+
+An FCLIB local problem ``FC(W, q, mu)`` is isotropic: one Coulomb coefficient per
+contact.  An anisotropic (elliptic) problem with ``M = diag(mu_x, mu_y)`` in the
+orthotropy frame maps onto it exactly by ``D = diag(1, mu_x, mu_y)`` per contact::
+
+    W' = D W D,   q' = D q,   mu' = 1,   r = D s,   u' = D u
+
+(``D K_1 = K_mu`` and the De Saxce velocity ``(u_n + ||M u_t||, u_t)`` is ``D^-1``
+times the isotropic one, so ``s`` solves the isotropic problem iff ``r`` solves the
+elliptic one).  Contacts whose cone is already circular (``mu_x == mu_y``,
+frictionless included) are written as they are (``D = I``, ``mu' = mu_x``), so an
+isotropic problem is stored as plain FCLIB.  A contact with exactly one zero
+coefficient keeps the scaling with a zero in ``D``: every isotropic solution ``s``
+still maps to a solution ``r = D s`` (``s = 0`` is written on that axis), and the
+rows and columns of ``W`` that ``D`` erases are kept in the extra group.
+
+The extra group ``/pushplan_anisotropy`` (ignored by other FCLIB readers) holds
+``mu_x``, ``mu_y``, ``angle`` and the ``scaling`` diagonal ``D`` (shape (nc, 3)),
+so that :func:`read_local_problem` restores the anisotropic problem.
+
+Sparse matrices follow FCLIB's ``struct fclib_matrix`` as FCLIB and Siconos fill
+it (the CSparse convention): ``nz >= 0`` triplet with ``p`` = column indices and
+``i`` = row indices (checked on the triplet ``H`` of the LMGC90 global problem
+``CubeH8.hdf5``; the comment in ``fclib.h`` says the opposite), ``nz = -1``
+compressed columns (``p`` column pointers, ``i`` row indices), ``nz = -2``
+compressed rows (``p`` row pointers, ``i`` column indices).
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["LocalProblem", "read_local_problem", "read_sparse_matrix", "write_local_problem"]
+
+ANISOTROPY_GROUP = "pushplan_anisotropy"
+FORMAT_VERSION = 1
+_TRIPLET_MIN, _CSC, _CSR = 0, -1, -2
+
+
+@dataclass(frozen=True)
+class LocalProblem:
+    """A local 3D frictional contact problem ``u = W r + q``, elliptic Coulomb law.
+
+    Attributes
+    ----------
+    W : ndarray, shape (3 nc, 3 nc)
+        Flexibility (Delassus) matrix in local frames, ordered ``(n, t_x, t_y)`` per contact.
+    q : ndarray, shape (nc, 3)
+        Free local velocity (or displacement).
+    mu_x, mu_y : ndarray, shape (nc,)
+        Principal friction coefficients along ``t_x`` and ``t_y``.
+    angle : ndarray, shape (nc,)
+        Orthotropy angle of ``t_x`` from the world x axis, rad (0 if not stored).
+    title, description : str
+        FCLIB ``info`` strings.
+    r_ref, u_ref : ndarray, shape (nc, 3), or None
+        The file's ``/solution`` reaction and velocity, if stored.
+    """
+
+    W: np.ndarray
+    q: np.ndarray
+    mu_x: np.ndarray
+    mu_y: np.ndarray
+    angle: np.ndarray
+    title: str
+    description: str
+    r_ref: np.ndarray | None
+    u_ref: np.ndarray | None
+
+    def __post_init__(self) -> None:
+        q = _contact_array("q", self.q, None)
+        nc = q.shape[0]
+        W = _dense_flexibility(self.W, nc)
+        mu_x = _coefficients("mu_x", self.mu_x, nc)
+        mu_y = _coefficients("mu_y", self.mu_y, nc)
+        angle = _per_contact("angle", self.angle, nc)
+        r_ref = None if self.r_ref is None else _contact_array("r_ref", self.r_ref, nc)
+        u_ref = None if self.u_ref is None else _contact_array("u_ref", self.u_ref, nc)
+        for name, a in (("W", W), ("q", q), ("mu_x", mu_x), ("mu_y", mu_y), ("angle", angle),
+                        ("r_ref", r_ref), ("u_ref", u_ref)):
+            if a is not None:
+                a.flags.writeable = False
+            object.__setattr__(self, name, a)
+
+    @property
+    def n_contacts(self) -> int:
+        """Number of contacts ``nc``."""
+        return self.q.shape[0]
+
+    @property
+    def isotropic(self) -> bool:
+        """True if ``mu_x == mu_y`` for every contact (circular cones)."""
+        return bool(np.array_equal(self.mu_x, self.mu_y))
+
+
+def read_sparse_matrix(group: h5py.Group) -> sp.csr_array:
+    """Read an FCLIB ``fclib_matrix`` group ``{m, n, nz, nzmax, p, i, x}``.
+
+    Duplicate triplet entries are summed.
+
+    Raises
+    ------
+    ValueError
+        Unknown ``nz`` code or arrays inconsistent with ``m``, ``n``.
+    """
+    m, n, nz = (int(group[k][()].ravel()[0]) for k in ("m", "n", "nz"))
+    p = np.asarray(group["p"][()], dtype=np.int64).ravel()
+    i = np.asarray(group["i"][()], dtype=np.int64).ravel()
+    x = np.asarray(group["x"][()], dtype=float).ravel()
+    where = group.name
+    if m < 0 or n < 0:
+        raise ValueError(f"{where}: negative shape ({m}, {n})")
+    if nz >= _TRIPLET_MIN:
+        if min(p.size, i.size, x.size) < nz:
+            raise ValueError(f"{where}: triplet with nz={nz} but p, i, x have {p.size}, {i.size}, {x.size} entries")
+        return _checked_coo(where, x[:nz], i[:nz], p[:nz], (m, n)).tocsr()
+    if nz not in (_CSC, _CSR):
+        raise ValueError(f"{where}: unknown sparse layout nz={nz} (expected >= 0, -1 or -2)")
+    n_ptr = (n if nz == _CSC else m) + 1
+    if p.size != n_ptr or p[0] != 0 or np.any(np.diff(p) < 0) or min(i.size, x.size) < p[-1]:
+        raise ValueError(f"{where}: compressed pointers (nz={nz}) inconsistent with shape ({m}, {n}) "
+                         f"and {i.size} indices")
+    idx, val = i[: p[-1]], x[: p[-1]]
+    major = np.repeat(np.arange(n_ptr - 1), np.diff(p))
+    rows, cols = (idx, major) if nz == _CSC else (major, idx)
+    return _checked_coo(where, val, rows, cols, (m, n)).tocsr()
+
+
+def read_local_problem(path: str | os.PathLike) -> LocalProblem:
+    """Read a local FCLIB problem, restoring the anisotropic one if our group is present.
+
+    Parameters
+    ----------
+    path : path of an HDF5 file with a ``/fclib_local`` group.
+
+    Returns
+    -------
+    LocalProblem
+
+    Raises
+    ------
+    ValueError
+        Not a 3D local problem, a mixed problem (``V``, ``R``), or inconsistent data.
+    """
+    with h5py.File(path, "r") as f:
+        if "fclib_local" not in f:
+            raise ValueError(f"{path}: no /fclib_local group (not a local FCLIB problem)")
+        loc = f["fclib_local"]
+        spacedim = int(loc["spacedim"][()].ravel()[0])
+        if spacedim != 3:
+            raise ValueError(f"{path}: spacedim must be 3, got {spacedim}")
+        if "V" in loc or "R" in loc:
+            raise ValueError(f"{path}: mixed local problems (V, R, s) are not supported")
+        W = read_sparse_matrix(loc["W"]).toarray()
+        q = np.asarray(loc["vectors/q"][()], dtype=float).reshape(-1, 3)
+        mu = np.asarray(loc["vectors/mu"][()], dtype=float).ravel()
+        nc = q.shape[0]
+        if W.shape != (3 * nc, 3 * nc) or mu.shape != (nc,):
+            raise ValueError(f"{path}: W {W.shape}, q {3 * nc}, mu {mu.shape} do not describe {nc} contacts")
+        title = _read_string(loc, "info/title")
+        description = _read_string(loc, "info/description")
+        r = _read_vector(f, "solution/r", nc)
+        u = _read_vector(f, "solution/u", nc)
+        if ANISOTROPY_GROUP not in f:
+            return LocalProblem(W, q, mu, mu.copy(), np.zeros(nc), title, description, r, u)
+        return _unscaled(f[ANISOTROPY_GROUP], W, q, mu, r, u, title, description, str(path))
+
+
+def write_local_problem(
+    path: str | os.PathLike,
+    W,
+    q,
+    mu_x,
+    mu_y,
+    angle=0.0,
+    title: str = "",
+    description: str = "",
+    r=None,
+    u=None,
+) -> None:
+    """Write an (an)isotropic local problem as FCLIB, scaled to isotropic form.
+
+    The file is written to a temporary name in the same directory and renamed,
+    so an existing file is replaced whole or not at all.
+
+    Parameters
+    ----------
+    path : destination file.
+    W : ndarray or scipy sparse, shape (3 nc, 3 nc)
+        Flexibility matrix, local ``(n, t_x, t_y)`` ordering.
+    q : ndarray, shape (nc, 3) or (3 nc,)
+    mu_x, mu_y : float or ndarray, shape (nc,), >= 0
+    angle : float or ndarray, shape (nc,), rad
+    title, description : str
+    r, u : ndarray, shape (nc, 3) or (3 nc,), optional
+        A solution (both or neither), written to ``/solution`` in scaled form.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, non-finite values, negative coefficients, or only one of ``r``, ``u``.
+    """
+    q = _contact_array("q", q, None)
+    nc = q.shape[0]
+    if nc == 0:
+        raise ValueError("q must describe at least one contact, got shape (0, 3)")
+    Wc = _sparse_flexibility(W, nc)
+    mu_x = _coefficients("mu_x", mu_x, nc)
+    mu_y = _coefficients("mu_y", mu_y, nc)
+    angle = _per_contact("angle", angle, nc)
+    if (r is None) != (u is None):
+        raise ValueError("r and u must be given together (FCLIB stores a solution as both)")
+    r = None if r is None else _contact_array("r", r, nc)
+    u = None if u is None else _contact_array("u", u, nc)
+    for name, s in (("title", title), ("description", description)):
+        if not isinstance(s, str):
+            raise ValueError(f"{name} must be a str, got {type(s).__name__}")
+
+    D, mu_prime = _scaling(mu_x, mu_y)
+    d = D.ravel()
+    zero = np.flatnonzero(d == 0.0)
+    rows = np.repeat(np.arange(3 * nc), np.diff(Wc.indptr))
+    Ws = sp.csr_array(((d[rows] * Wc.data) * d[Wc.indices], Wc.indices, Wc.indptr), shape=Wc.shape)
+    scaled = bool(np.any(D != 1.0))
+    math_info = ("anisotropic problem scaled to isotropic form, r = D s, u' = D u; "
+                 f"D and the coefficients are in /{ANISOTROPY_GROUP}") if scaled else ""
+
+    def write(f: h5py.File) -> None:
+        loc = f.create_group("fclib_local")
+        _int_scalar(loc, "spacedim", 3)
+        _write_sparse_matrix(loc.create_group("W"), Ws)
+        vec = loc.create_group("vectors")
+        vec.create_dataset("q", data=(D * q).ravel())
+        vec.create_dataset("mu", data=mu_prime)
+        info = loc.create_group("info")
+        for name, text in (("title", title), ("description", description), ("math_info", math_info)):
+            _write_string(info, name, text)
+        if r is not None:
+            sol = f.create_group("solution")
+            s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
+            sol.create_dataset("r", data=s.ravel())
+            sol.create_dataset("u", data=(D * u).ravel())
+        g = f.create_group(ANISOTROPY_GROUP)
+        g.attrs["format_version"] = FORMAT_VERSION
+        g.attrs["mapping"] = "W' = D W D, q' = D q, r = D s, u' = D u, D = diag(scaling[c]) per contact"
+        for name, a in (("mu_x", mu_x), ("mu_y", mu_y), ("angle", angle), ("scaling", D)):
+            g.create_dataset(name, data=a)
+        if zero.size:
+            g.create_dataset("degenerate_index", data=zero.astype(np.int64))
+            _write_sparse_matrix(g.create_group("W_degenerate_rows"), Wc[zero, :])
+            _write_sparse_matrix(g.create_group("W_degenerate_cols_T"), Wc.T.tocsr()[zero, :])
+            g.create_dataset("q_degenerate", data=q.ravel()[zero])
+            if r is not None:
+                g.create_dataset("r_degenerate", data=r.ravel()[zero])
+                g.create_dataset("u_degenerate", data=u.ravel()[zero])
+
+    _atomic_write(Path(path), write)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _scaling(mu_x: np.ndarray, mu_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-contact ``D`` (nc, 3) and isotropic coefficient ``mu'`` (nc,)."""
+    circular = mu_x == mu_y
+    D = np.column_stack([np.ones_like(mu_x), mu_x, mu_y])
+    D[circular, 1:] = 1.0
+    return D, np.where(circular, mu_x, 1.0)
+
+
+def _unscaled(g: h5py.Group, Wp: np.ndarray, qp: np.ndarray, mu_p: np.ndarray, s, up,
+              title: str, description: str, where: str) -> LocalProblem:
+    """Undo :func:`write_local_problem`'s scaling with the data of our extra group."""
+    nc = qp.shape[0]
+    mu_x = _coefficients("mu_x", g["mu_x"][()], nc)
+    mu_y = _coefficients("mu_y", g["mu_y"][()], nc)
+    angle = _per_contact("angle", g["angle"][()], nc)
+    D = np.asarray(g["scaling"][()], dtype=float)
+    if D.shape != (nc, 3) or np.any(D[:, 0] != 1.0) or np.any(D < 0) or not np.all(np.isfinite(D)):
+        raise ValueError(f"{where}: /{ANISOTROPY_GROUP}/scaling must be (nc, 3) = (1, >=0, >=0), got {D.shape}")
+    # The FCLIB cone ||s_t|| <= mu' s_n mapped by D must be the stored elliptic cone.
+    if not (np.array_equal(mu_p * D[:, 1], mu_x) and np.array_equal(mu_p * D[:, 2], mu_y)):
+        raise ValueError(f"{where}: FCLIB mu and /{ANISOTROPY_GROUP} (scaling, mu_x, mu_y) disagree")
+    d = D.ravel()
+    keep = d != 0.0
+    zero = np.flatnonzero(~keep)
+    W = np.zeros_like(Wp)
+    W[np.ix_(keep, keep)] = (Wp[np.ix_(keep, keep)] / d[keep][:, None]) / d[keep][None, :]
+    q = np.zeros(3 * nc)
+    q[keep] = qp.ravel()[keep] / d[keep]
+    r = None if s is None else (D * s).ravel()
+    u = None if up is None else np.where(keep, up.ravel() / np.where(keep, d, 1.0), 0.0)
+    if zero.size:
+        if not np.array_equal(np.asarray(g["degenerate_index"][()]).ravel(), zero):
+            raise ValueError(f"{where}: /{ANISOTROPY_GROUP}/degenerate_index does not match the zeros of scaling")
+        W[zero, :] = read_sparse_matrix(g["W_degenerate_rows"]).toarray()
+        W[:, zero] = read_sparse_matrix(g["W_degenerate_cols_T"]).toarray().T
+        q[zero] = g["q_degenerate"][()]
+        if r is not None and u is not None:
+            r[zero] = g["r_degenerate"][()]
+            u[zero] = g["u_degenerate"][()]
+    return LocalProblem(W, q.reshape(nc, 3), mu_x, mu_y, angle, title, description,
+                        None if r is None else r.reshape(nc, 3),
+                        None if u is None else u.reshape(nc, 3))
+
+
+def _checked_coo(where: str, x: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape) -> sp.coo_array:
+    m, n = shape
+    if rows.size and (rows.min() < 0 or rows.max() >= m or cols.min() < 0 or cols.max() >= n):
+        raise ValueError(f"{where}: indices out of range for shape ({m}, {n}): rows "
+                         f"[{rows.min()}, {rows.max()}], columns [{cols.min()}, {cols.max()}]")
+    return sp.coo_array((x, (rows, cols)), shape=shape)
+
+
+def _write_sparse_matrix(g: h5py.Group, A: sp.csr_array) -> None:
+    """Write ``A`` as an FCLIB compressed-row matrix (``nz = -2``)."""
+    m, n = A.shape
+    for name, value in (("nzmax", A.nnz), ("m", m), ("n", n), ("nz", _CSR)):
+        _int_scalar(g, name, value)
+    g.create_dataset("p", data=A.indptr.astype(np.int32))
+    g.create_dataset("i", data=A.indices.astype(np.int32))
+    g.create_dataset("x", data=np.asarray(A.data, dtype=float))
+
+
+def _int_scalar(g: h5py.Group, name: str, value: int) -> None:
+    g.create_dataset(name, data=np.array([value], dtype=np.int32))
+
+
+def _write_string(g: h5py.Group, name: str, text: str) -> None:
+    raw = text.encode("utf-8")
+    g.create_dataset(name, data=np.array(raw, dtype=f"S{max(len(raw), 1)}"))
+
+
+def _read_string(g: h5py.Group, name: str) -> str:
+    if name not in g:
+        return ""
+    v = g[name][()]
+    return v.decode("utf-8", errors="replace") if isinstance(v, bytes) else str(v)
+
+
+def _read_vector(f: h5py.File, name: str, nc: int) -> np.ndarray | None:
+    if name not in f:
+        return None
+    v = np.asarray(f[name][()], dtype=float).ravel()
+    if v.size != 3 * nc:
+        raise ValueError(f"{f.filename}: /{name} has {v.size} entries, expected {3 * nc}")
+    return v.reshape(nc, 3)
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Call ``write(h5py.File)`` on a temporary file next to ``path``, then rename it."""
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    try:
+        with h5py.File(tmp, "w-") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _contact_array(name: str, v, nc: int | None) -> np.ndarray:
+    """``(nc, 3)`` or ``(3 nc,)`` finite input as a float ``(nc, 3)`` copy."""
+    a = np.array(v, dtype=float)
+    if a.ndim == 1 and a.size % 3 == 0:
+        a = a.reshape(-1, 3)
+    if a.ndim != 2 or a.shape[1] != 3 or (nc is not None and a.shape[0] != nc):
+        want = "(nc, 3) or (3 nc,)" if nc is None else f"({nc}, 3) or ({3 * nc},)"
+        raise ValueError(f"{name} must have shape {want}, got {np.shape(v)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains non-finite values")
+    return a
+
+
+def _per_contact(name: str, v, nc: int) -> np.ndarray:
+    a = np.array(v, dtype=float)
+    if a.ndim > 1 or (a.ndim == 1 and a.shape[0] != nc):
+        raise ValueError(f"{name} must be a scalar or have shape ({nc},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.ravel()[~np.isfinite(a.ravel())][0]}")
+    return np.broadcast_to(a, (nc,)).copy()
+
+
+def _coefficients(name: str, v, nc: int) -> np.ndarray:
+    a = _per_contact(name, v, nc)
+    if np.any(a < 0):
+        raise ValueError(f"{name} must be >= 0, got {a[a < 0][0]}")
+    return a
+
+
+def _dense_flexibility(W, nc: int) -> np.ndarray:
+    a = W.toarray() if sp.issparse(W) else np.array(W, dtype=float)
+    a = np.asarray(a, dtype=float)
+    if a.shape != (3 * nc, 3 * nc):
+        raise ValueError(f"W must have shape ({3 * nc}, {3 * nc}) for {nc} contacts, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("W contains non-finite values")
+    return a
+
+
+def _sparse_flexibility(W, nc: int) -> sp.csr_array:
+    if sp.issparse(W):
+        A = sp.csr_array(W, dtype=float, copy=True)
+        A.sum_duplicates()
+        A.sort_indices()
+    else:
+        A = sp.csr_array(_dense_flexibility(W, nc))
+    if A.shape != (3 * nc, 3 * nc):
+        raise ValueError(f"W must have shape ({3 * nc}, {3 * nc}) for {nc} contacts, got {A.shape}")
+    if not np.all(np.isfinite(A.data)):
+        raise ValueError("W contains non-finite values")
+    return A

@@ -1,0 +1,280 @@
+"""Elliptic (orthotropic) Coulomb cone of the paper, sect. 3-5.
+
+Contact vectors are arrays of shape ``(n_contacts, 3)`` ordered ``(n, t_x, t_y)``
+in the local frame whose tangent axes are the orthotropy axes: ``mu_x`` acts
+along ``t_x`` and ``mu_y`` along ``t_y``.  With ``M = diag(mu_x, mu_y)``:
+
+* friction cone ``K_mu = {r : ||M^-1 r_t|| <= r_n}`` (eq. 15),
+* its polar cone ``K_mu° = {v : v_n + ||M v_t|| <= 0}`` (eq. 22),
+* the De Saxcé modified velocity ``(u_n + ||M u_t||, u_t)``.
+
+A zero coefficient is allowed: ``mu_i = 0`` forces ``r_ti = 0`` and the cone
+degenerates (for ``mu_x = mu_y = 0``) to the half-line ``r_t = 0, r_n >= 0`` of
+frictionless contact.  All functions accept scalar or per-contact coefficients.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "elliptic_norm",
+    "dual_elliptic_norm",
+    "in_cone",
+    "in_polar_cone",
+    "modified_velocity",
+    "project_elliptic_cone",
+    "rotation_matrix",
+    "to_local",
+    "to_global",
+    "scaling_diagonal",
+]
+
+_ROOT_MAX_ITER = 100
+
+
+def _as_contacts(name: str, v) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    if a.ndim == 1 and a.shape[0] == 3:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n_contacts, 3), got {np.shape(v)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains non-finite values")
+    return a
+
+
+def _as_coefficients(mu_x, mu_y, n: int) -> tuple[np.ndarray, np.ndarray]:
+    out = []
+    for name, mu in (("mu_x", mu_x), ("mu_y", mu_y)):
+        m = np.asarray(mu, dtype=float)
+        if m.ndim > 1 or (m.ndim == 1 and m.shape[0] != n):
+            raise ValueError(f"{name} must be a scalar or have shape ({n},), got {m.shape}")
+        if not np.all(np.isfinite(m)) or np.any(m < 0):
+            bad = m[~(np.isfinite(m) & (m >= 0))] if m.ndim else m
+            raise ValueError(f"{name} must be finite and >= 0, got {np.ravel(bad)[0]}")
+        out.append(np.broadcast_to(m, (n,)).astype(float))
+    return out[0], out[1]
+
+
+def _row_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``a`` without overflow or underflow of the squares."""
+    m = np.max(np.abs(a), axis=1)
+    safe = np.where(m > 0, m, 1.0)
+    return m * np.linalg.norm(a / safe[:, None], axis=1)
+
+
+def _prepare(name, v, mu_x, mu_y):
+    a = _as_contacts(name, v)
+    mx, my = _as_coefficients(mu_x, mu_y, a.shape[0])
+    return a, mx, my
+
+
+def elliptic_norm(r_t, mu_x, mu_y) -> np.ndarray:
+    """``||M^-1 r_t||`` (eq. 14) for tangential vectors ``r_t`` of shape (n, 2).
+
+    A component along an axis with zero friction contributes ``inf`` unless it is 0.
+    """
+    rt = np.atleast_2d(np.asarray(r_t, dtype=float))
+    if rt.shape[-1] != 2:
+        raise ValueError(f"r_t must have shape (n_contacts, 2), got {np.shape(r_t)}")
+    mx, my = _as_coefficients(mu_x, mu_y, rt.shape[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cx = np.where(rt[:, 0] == 0.0, 0.0, rt[:, 0] / mx)
+        cy = np.where(rt[:, 1] == 0.0, 0.0, rt[:, 1] / my)
+    return np.hypot(cx, cy)
+
+
+def dual_elliptic_norm(v_t, mu_x, mu_y) -> np.ndarray:
+    """``||M v_t||`` (eq. 21), the support function of the friction ellipse."""
+    vt = np.atleast_2d(np.asarray(v_t, dtype=float))
+    if vt.shape[-1] != 2:
+        raise ValueError(f"v_t must have shape (n_contacts, 2), got {np.shape(v_t)}")
+    mx, my = _as_coefficients(mu_x, mu_y, vt.shape[0])
+    return np.hypot(mx * vt[:, 0], my * vt[:, 1])
+
+
+def in_cone(r, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
+    """Boolean mask: ``r`` in ``K_mu`` up to ``tol * ||r||``."""
+    a, mx, my = _prepare("r", r, mu_x, mu_y)
+    slack = tol * _row_norms(a)
+    # an axis without friction must carry no force; the others enter ||M^-1 r_t||
+    with np.errstate(over="ignore"):  # inf for a tiny mu is the right answer: outside
+        cx = np.where(mx > 0, a[:, 1] / np.where(mx > 0, mx, 1.0), 0.0)
+        cy = np.where(my > 0, a[:, 2] / np.where(my > 0, my, 1.0), 0.0)
+    free_ok = (np.where(mx > 0, 0.0, np.abs(a[:, 1])) <= slack) & (
+        np.where(my > 0, 0.0, np.abs(a[:, 2])) <= slack
+    )
+    return (np.hypot(cx, cy) <= a[:, 0] + slack) & free_ok
+
+
+def in_polar_cone(v, mu_x, mu_y, tol: float = 0.0) -> np.ndarray:
+    """Boolean mask: ``v`` in the polar cone, ``v_n + ||M v_t|| <= tol * ||v||``."""
+    a, mx, my = _prepare("v", v, mu_x, mu_y)
+    return a[:, 0] + np.hypot(mx * a[:, 1], my * a[:, 2]) <= tol * _row_norms(a)
+
+
+def modified_velocity(u, mu_x, mu_y) -> np.ndarray:
+    """De Saxcé modified velocity ``(u_n + ||M u_t||, u_t)``, shape (n, 3)."""
+    a, mx, my = _prepare("u", u, mu_x, mu_y)
+    return _modified(a, mx, my)
+
+
+def _modified(a, mx, my) -> np.ndarray:
+    """:func:`modified_velocity` for checked input (see :func:`_project`)."""
+    out = a.copy()
+    out[:, 0] += np.hypot(mx * a[:, 1], my * a[:, 2])
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _project_kernel(a, mx, my):
+    """The projection of each row of ``a`` (see :func:`_project`), one contact at a time.
+
+    Each row is normalised (``max |t_i| = 1``, a zero row stays 0 and is
+    polar).  Inside the cone it is kept, in the polar cone it goes to 0, with
+    no friction-weighted tangential part to the normal axis, and otherwise
+    onto the boundary: ``r = (t, tau_tx mu_x^2 t / d_x, tau_ty mu_y^2 t /
+    d_y)`` with ``d_i = (1 + mu_i^2) t - tau_n``, where ``t`` solves ``sum_i
+    (tau_ti mu_i / d_i)^2 = 1``.  The unknown is ``delta = t - tau_n``, so
+    that ``d_i = delta + mu_i^2 t`` keeps full relative precision for narrow
+    cones (``t - tau_n`` computed from ``t`` is pure rounding once ``mu <
+    1e-8``).  With ``e_i = tau_ti mu_i / (1 + mu_i^2)`` and ``c_i = mu_i^2
+    tau_n / (1 + mu_i^2)`` the equation reads ``phi(delta) = sum_i e_i^2 /
+    (delta + c_i)^2 = 1`` (the secular equation of a point-to-ellipse
+    distance).  ``h = phi^(-1/2)`` is a weighted power mean with exponent -2
+    of the ``delta + c_i`` > 0, hence increasing and concave in ``delta``; it
+    is <= 1 at ``lo = max_i(|e_i| - c_i)`` (one term alone reaches 1 there),
+    so Newton on ``h = 1`` from ``lo`` increases monotonically to the root,
+    with no overshoot to guard against.  Measured: at most 8 passes for
+    ``mu_x / mu_y = 6``, 13 for 1e4.
+
+    Division by a zero coefficient gives ``inf`` (``error_model="numpy"``):
+    a tangential component along an axis without friction puts the point
+    outside the cone, and ``inf`` for a tiny ``mu`` is the right answer too.
+    """
+    n = a.shape[0]
+    r = np.zeros((n, 3))
+    for k in range(n):
+        a0, a1, a2 = a[k, 0], a[k, 1], a[k, 2]
+        mux, muy = mx[k], my[k]
+        scale = max(abs(a0), abs(a1), abs(a2))
+        s = scale if scale > 0.0 else 1.0
+        tn, t1, t2 = a0 / s, a1 / s, a2 / s
+        sup = math.hypot(mux * t1, muy * t2)  # ||M tau_t||
+        c1 = 0.0 if t1 == 0.0 else t1 / mux  # M^-1 tau_t
+        c2 = 0.0 if t2 == 0.0 else t2 / muy
+        if math.hypot(c1, c2) <= tn:  # inside
+            r[k, 0], r[k, 1], r[k, 2] = a0, a1, a2
+            continue
+        if tn + sup <= 0.0:  # polar
+            continue
+        if sup == 0.0:  # outside both with tau_n > 0: onto the axis
+            r[k, 0] = a0
+            continue
+        m2x, m2y = mux * mux, muy * muy
+        ix, iy = 1.0 / (1.0 + m2x), 1.0 / (1.0 + m2y)
+        ex, ey = t1 * mux * ix, t2 * muy * iy
+        cx, cy = m2x * tn * ix, m2y * tn * iy
+        delta = max(max(-tn, 0.0), max(abs(ex) - cx, abs(ey) - cy))
+        # a zero e_i contributes nothing, whatever c_i; c_i = 1 keeps its term finite
+        if ex == 0.0:
+            cx = 1.0
+        if ey == 0.0:
+            cy = 1.0
+        for _ in range(_ROOT_MAX_ITER):
+            jx, jy = 1.0 / (delta + cx), 1.0 / (delta + cy)
+            gx, gy = (ex * jx) ** 2, (ey * jy) ** 2
+            phi = gx + gy
+            # Newton step (1 - h) / h' with h = phi^(-1/2), h' = h^3 sum_i g_i^2 / (delta + c_i)
+            step = phi * (math.sqrt(phi) - 1.0) / (gx * jx + gy * jy)
+            # rounding can make the last steps <= 0 or NaN: the root is reached
+            if not step > 0.0:
+                step = 0.0
+            new = delta + step
+            done = step <= 4e-16 * new
+            delta = new
+            if done:
+                break
+        tb = tn + delta
+        dx, dy = delta + m2x * tb, delta + m2y * tb
+        # d == 0 only if delta and mu^2 t both underflow: |r_tk| is below rounding
+        r[k, 0] = tb * s
+        r[k, 1] = a1 * (m2x * tb / dx if dx > 0.0 else 0.0)
+        r[k, 2] = a2 * (m2y * tb / dy if dy > 0.0 else 0.0)
+    return r
+
+
+def project_elliptic_cone(tau, mu_x, mu_y) -> np.ndarray:
+    """Euclidean projection of ``tau`` onto the elliptic cone ``K_mu`` (sect. 5).
+
+    Parameters
+    ----------
+    tau : array_like, shape (n_contacts, 3) or (3,)
+        Points ``(tau_n, tau_tx, tau_ty)`` in the local frames.
+    mu_x, mu_y : float or array_like, shape (n_contacts,)
+        Friction coefficients along ``t_x`` and ``t_y`` (>= 0).
+
+    Returns
+    -------
+    r : ndarray, shape (n_contacts, 3)
+        ``tau`` if it lies in ``K_mu``; 0 if it lies in the polar cone; otherwise
+        the nearest point on the cone boundary.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape, non-finite entries or negative coefficients.
+    """
+    a, mx, my = _prepare("tau", tau, mu_x, mu_y)
+    return _project(a, mx, my)
+
+
+def _project(a, mx, my) -> np.ndarray:
+    """:func:`project_elliptic_cone` for checked input: ``a`` finite, shape (n, 3);
+    ``mx``, ``my`` finite, >= 0, shape (n,).  The solvers' inner loops call this
+    tens of times per Newton iteration; compiled, it costs 8 us for the 81
+    contacts of a planning mesh, where the same algorithm vectorised over the
+    contacts in numpy cost 280 us (numpy calls, not arithmetic)."""
+    return _project_kernel(np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(mx, dtype=float),
+                           np.ascontiguousarray(my, dtype=float))
+
+
+def rotation_matrix(angle) -> np.ndarray:
+    """In-plane rotation(s) ``R(angle)`` mapping local tangent coordinates to world x, y.
+
+    Returns shape (2, 2) for a scalar angle, (n, 2, 2) for an array.
+    """
+    th = np.asarray(angle, dtype=float)
+    if not np.all(np.isfinite(th)):
+        raise ValueError(f"angle must be finite, got {angle}")
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def to_local(v_world, angle) -> np.ndarray:
+    """World ``(x, y, z)`` vectors, shape (n, 3), to local ``(n, t_x, t_y)``."""
+    v = _as_contacts("v_world", v_world)
+    R = rotation_matrix(angle)
+    t = np.einsum("...ji,...j->...i", R, v[:, :2])
+    return np.column_stack([v[:, 2], t])
+
+
+def to_global(v_local, angle) -> np.ndarray:
+    """Local ``(n, t_x, t_y)`` vectors, shape (n, 3), to world ``(x, y, z)``."""
+    v = _as_contacts("v_local", v_local)
+    R = rotation_matrix(angle)
+    xy = np.einsum("...ij,...j->...i", R, v[:, 1:])
+    return np.column_stack([xy, v[:, 0]])
+
+
+def scaling_diagonal(mu_x, mu_y, n: int) -> np.ndarray:
+    """Per-contact ``D = diag(1, mu_x, mu_y)`` as an array of shape (n, 3).
+
+    ``FC(W, q, M)`` equals the isotropic ``FC(D W D, D q, mu = 1)`` with ``r = D s``.
+    """
+    mx, my = _as_coefficients(mu_x, mu_y, n)
+    return np.column_stack([np.ones(n), mx, my])

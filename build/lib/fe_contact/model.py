@@ -1,0 +1,420 @@
+"""Static problem description (``Model``), explicit solution state (``State``),
+load-step commands and step reports.
+
+The split follows MuJoCo's ``mjModel`` / ``mjData``: a :class:`Model` is immutable
+and holds everything precomputed once (mesh, quadrature geometry, sparsity
+pattern, contact frames); a :class:`State` is the path-dependent solution after
+some load steps.  :func:`fe_contact.step.step` maps ``(model, state, command)`` to
+a new state and a :class:`StepReport` without mutating its inputs, so a planner
+can branch from any state.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .assembly import SparsityPattern, sparsity_pattern
+from .elasticity import ElementGeometry, Material, element_geometry
+from .cholesky import SupernodalStructure, supernodal_structure
+from .mesh import BlockMesh, face_tributary_areas, nested_dissection_parts
+
+from .local_solver import METHODS as LOCAL_METHODS
+
+
+def _finite(name: str, value: float) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class Friction:
+    """Orthotropic (elliptic) Coulomb friction of the plane.
+
+    Parameters
+    ----------
+    mu_x, mu_y : float
+        Principal friction coefficients along the orthotropy axes ``t_x``, ``t_y``
+        (``>= 0``; both zero is frictionless contact).
+    angle : float
+        Angle of ``t_x`` from world x, counter-clockwise, rad.
+    """
+
+    mu_x: float
+    mu_y: float
+    angle: float = 0.0
+
+    def __post_init__(self):
+        for name in ("mu_x", "mu_y"):
+            v = _finite(name, getattr(self, name))
+            if v < 0:
+                raise ValueError(f"{name} must be >= 0, got {v}")
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "angle", _finite("angle", self.angle))
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Settings of the Newton equilibrium loop and the local contact solver.
+
+    Parameters
+    ----------
+    local_method : str
+        Local contact solver, one of ``LOCAL_METHODS``.  ``"newton"`` (default)
+        is the fastest robust one measured (``benchmarks/local_solvers.py``);
+        ``"uzawa"`` is the paper's algorithm.
+    local_tol : float
+        Natural-map residual tolerance of the local solve (Siconos normalisation).
+    local_max_iter : int or None
+        Iteration limit of the local solve (None: the method's default, 20000
+        Uzawa sweeps or 100 Newton steps).
+    newton_tol : float
+        Tolerance on the out-of-balance force of the free dofs, relative to the
+        largest of the contact and upper-face reaction norms and the step's
+        predictor out-of-balance force (which keeps it meaningful when the
+        block is lifted off and all forces vanish).
+    newton_max_iter : int
+        Iteration limit of the equilibrium loop.
+    reuse_tangent : bool
+        Modified Newton: keep the tangent (its factorisation and the flexibility
+        matrix) from iteration to iteration and from step to step, refreshing it
+        only when the out-of-balance force contracts by less than
+        ``refresh_ratio`` per iteration and the iterations a new tangent would
+        save cost more than building it (a size-based estimate, so runs are
+        repeatable).  The converged solution is the same to the tolerances; the
+        flexibility matrix, the dominant cost, is computed far less often.
+    refresh_ratio : float
+        Contraction factor of the relative residual above which a reused
+        tangent may be recomputed.
+    """
+
+    local_method: str = "newton"
+    local_tol: float = 1e-10
+    local_max_iter: int | None = None
+    newton_tol: float = 1e-10
+    newton_max_iter: int = 30
+    reuse_tangent: bool = True
+    refresh_ratio: float = 0.2
+
+    def __post_init__(self):
+        if self.local_method not in LOCAL_METHODS:
+            raise ValueError(
+                f"local_method must be one of {LOCAL_METHODS}, got {self.local_method!r}"
+            )
+        for name in ("local_tol", "newton_tol"):
+            v = _finite(name, getattr(self, name))
+            if not 0 < v < 1:
+                raise ValueError(f"{name} must be in (0, 1), got {v}")
+        v = _finite("refresh_ratio", self.refresh_ratio)
+        if not 0 < v < 1:
+            raise ValueError(f"refresh_ratio must be in (0, 1), got {v}")
+        for name in ("local_max_iter", "newton_max_iter"):
+            v = getattr(self, name)
+            if v is None and name == "local_max_iter":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+def local_frame(angle: float) -> np.ndarray:
+    """Rotation from world ``(x, y, z)`` to the local contact basis ``(n, t_x, t_y)``.
+
+    Returns
+    -------
+    T : ndarray, shape (3, 3)
+        ``v_local = T @ v_world``; rows are ``n = e_z``, ``t_x``, ``t_y``.
+    """
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[0.0, 0.0, 1.0], [c, s, 0.0], [-s, c, 0.0]])
+
+
+@dataclass(frozen=True)
+class Model:
+    """Immutable description of the block-on-plane problem.
+
+    Build it with :func:`build_model`.  Derived arrays (quadrature geometry,
+    sparsity pattern, dof partition, tributary areas) are computed once here.
+    """
+
+    mesh: BlockMesh
+    material: Material
+    friction: Friction
+    quadrature: int = 3
+    options: SolverOptions = field(default_factory=SolverOptions)
+    geometry: ElementGeometry = field(init=False, repr=False)
+    pattern: SparsityPattern = field(init=False, repr=False)
+    free_dofs: np.ndarray = field(init=False, repr=False)
+    """(n_free,) dofs that are not prescribed (all but the upper-face dofs)."""
+    upper_dofs: np.ndarray = field(init=False, repr=False)
+    """(3 * n_upper,) prescribed dofs, node-major."""
+    lower_dofs: np.ndarray = field(init=False, repr=False)
+    """(n_lower, 3) world x, y, z dofs of the contact nodes."""
+    frame: np.ndarray = field(init=False, repr=False)
+    """(3, 3) world -> local contact frame rotation."""
+    lower_area: np.ndarray = field(init=False, repr=False)
+    """(n_lower,) tributary area of each contact node, m^2."""
+    upper_area: np.ndarray = field(init=False, repr=False)
+    """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
+    factor_structure: SupernodalStructure | None = field(init=False, repr=False)
+    """Symbolic multifrontal Cholesky factorisation of the free-dof stiffness:
+    nested dissection of the interior, the contact dofs last in ``lower_dofs``
+    order (:mod:`fe_contact.cholesky`); None if the mesh is not a tensor grid
+    (then SuperLU factorises and orders)."""
+
+    def __post_init__(self):
+        if not isinstance(self.mesh, BlockMesh):
+            raise ValueError(f"mesh must be a BlockMesh, got {type(self.mesh).__name__}")
+        if not isinstance(self.material, Material):
+            raise ValueError(f"material must be a Material, got {type(self.material).__name__}")
+        if not isinstance(self.friction, Friction):
+            raise ValueError(f"friction must be a Friction, got {type(self.friction).__name__}")
+        if self.quadrature not in (2, 3):
+            # one point per element leaves the hex8 hourglass modes without
+            # stiffness: K_ff is singular and the flexibility matrix meaningless
+            raise ValueError(
+                f"quadrature must be 2 or 3 Gauss points per direction (1 leaves hourglass modes), "
+                f"got {self.quadrature!r}"
+            )
+        mesh = self.mesh
+        set_ = object.__setattr__
+        set_(self, "geometry", element_geometry(mesh, self.quadrature))
+        set_(self, "pattern", sparsity_pattern(mesh.elements, mesh.n_nodes))
+        upper_dofs = (3 * mesh.upper[:, None] + np.arange(3)).ravel()
+        mask = np.ones(mesh.n_dofs, dtype=bool)
+        mask[upper_dofs] = False
+        set_(self, "upper_dofs", upper_dofs)
+        set_(self, "free_dofs", np.flatnonzero(mask))
+        set_(self, "lower_dofs", 3 * mesh.lower[:, None] + np.arange(3))
+        set_(self, "frame", local_frame(self.friction.angle))
+        set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
+        set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
+        parts = nested_dissection_parts(mesh)
+        if parts is None:
+            set_(self, "factor_structure", None)
+        else:
+            is_contact = np.zeros(mesh.n_dofs, dtype=bool)
+            is_contact[self.lower_dofs] = True
+            interior = mask & ~is_contact
+            dof_parts = [(3 * nodes[:, None] + np.arange(3)).ravel() for nodes in parts]
+            set_(self, "factor_structure", supernodal_structure(
+                self.pattern.indptr, self.pattern.indices, self.free_dofs,
+                [d[interior[d]] for d in dof_parts], self.lower_dofs.ravel(),
+            ))
+
+    @property
+    def n_contacts(self) -> int:
+        return int(self.mesh.lower.size)
+
+    @property
+    def upper_centre(self) -> np.ndarray:
+        """(3,) reference centre of the upper face, m."""
+        return self.mesh.nodes[self.mesh.upper].mean(axis=0)
+
+
+def build_model(
+    size,
+    divisions,
+    young: float,
+    poisson: float,
+    mu_x: float,
+    mu_y: float,
+    angle: float = 0.0,
+    quadrature: int = 3,
+    options: SolverOptions | None = None,
+) -> Model:
+    """Convenience constructor of a :class:`Model` for a rectangular block.
+
+    Parameters
+    ----------
+    size : (3,) float
+        Block size ``(lx, ly, lz)``, m.  Lower face on z = 0, centred on the origin.
+    divisions : (3,) int
+        Elements ``(nx, ny, nz)``.
+    young, poisson : float
+        St Venant-Kirchhoff material, Pa and -.
+    mu_x, mu_y, angle : float
+        Friction coefficients and orthotropy angle (rad).
+    """
+    from .mesh import block_mesh
+
+    return Model(
+        mesh=block_mesh(size, divisions),
+        material=Material(young, poisson),
+        friction=Friction(mu_x, mu_y, angle),
+        quadrature=quadrature,
+        options=options or SolverOptions(),
+    )
+
+
+@dataclass(frozen=True)
+class Command:
+    """One load step: rigid motion increment of the upper face.
+
+    Parameters
+    ----------
+    dx, dy, dz : float
+        Translation increment of the upper face, m (world frame).
+    dtheta : float
+        Rotation increment about the vertical axis through the current upper-face
+        centre, rad, counter-clockwise seen from +z.
+    """
+
+    dx: float = 0.0
+    dy: float = 0.0
+    dz: float = 0.0
+    dtheta: float = 0.0
+
+    def __post_init__(self):
+        for name in ("dx", "dy", "dz", "dtheta"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class State:
+    """Path-dependent solution after some load steps.
+
+    Attributes
+    ----------
+    displacement : ndarray, shape (n_nodes, 3)
+        Total nodal displacement from the reference configuration, m.
+    reaction : ndarray, shape (n_lower, 3)
+        Contact force on the block at each lower-face node, local frame
+        ``(n, t_x, t_y)``, N.
+    upper_translation : ndarray, shape (3,)
+        Cumulative translation of the upper face, m.
+    upper_rotation : float
+        Cumulative rotation of the upper face about z, rad.
+    slip_path : ndarray, shape (n_lower,)
+        Accumulated slip path length of each contact node (sum of slip increment
+        norms), m.
+    step_index : int
+        Number of load steps taken.
+    tangent : object or None
+        Factorised tangent and flexibility matrix of an earlier configuration,
+        reused by the next step when ``SolverOptions.reuse_tangent`` (a cache:
+        read-only, shared by states branched from this one, excluded from
+        comparisons).
+    """
+
+    displacement: np.ndarray
+    reaction: np.ndarray
+    upper_translation: np.ndarray
+    upper_rotation: float
+    slip_path: np.ndarray
+    step_index: int = 0
+    tangent: object = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        for name in ("displacement", "reaction", "upper_translation", "slip_path"):
+            a = np.array(getattr(self, name), dtype=float)  # copy: never alias a caller's array
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+
+def initial_state(model: Model) -> State:
+    """Undeformed block resting on the plane with zero contact forces."""
+    n_lower = model.n_contacts
+    return State(
+        displacement=np.zeros((model.mesh.n_nodes, 3)),
+        reaction=np.zeros((n_lower, 3)),
+        upper_translation=np.zeros(3),
+        upper_rotation=0.0,
+        slip_path=np.zeros(n_lower),
+        step_index=0,
+    )
+
+
+class Status(enum.Enum):
+    """Outcome of a load step."""
+
+    CONVERGED = "converged"
+    NEWTON_NOT_CONVERGED = "newton_not_converged"
+    CONTACT_NOT_CONVERGED = "contact_not_converged"
+    ELEMENT_INVERTED = "element_inverted"
+    NOT_FINITE = "not_finite"
+    TANGENT_SINGULAR = "tangent_singular"  # K_ff singular or too ill-conditioned for W
+
+
+class NodeStatus(enum.IntEnum):
+    """Contact status of a lower-face node at the end of a step."""
+
+    STICK = 0
+    SLIP = 1
+    SEPARATED = 2
+
+
+@dataclass(frozen=True)
+class IterLog:
+    """One Newton iteration: relative out-of-balance force before the update,
+    local-solver iterations and final local residual."""
+
+    newton_residual: float
+    contact_iterations: int
+    contact_residual: float
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """Everything measured in one load step (SI units; arrays per lower-face node
+    are ordered as ``mesh.lower``).
+
+    When ``status`` is not ``CONVERGED`` the returned state is the input state and
+    the per-node fields describe the last iterate (for diagnosis only).
+    """
+
+    status: Status
+    message: str
+    step_index: int
+    command: Command
+    displacement: np.ndarray  # (n_nodes, 3) m
+    reaction_local: np.ndarray  # (n_lower, 3) N, (n, t_x, t_y)
+    reaction_world: np.ndarray  # (n_lower, 3) N, (x, y, z)
+    pressure: np.ndarray  # (n_lower,) Pa, r_n / tributary area
+    slip_increment: np.ndarray  # (n_lower, 2) m, world x, y
+    slip: np.ndarray  # (n_lower,) m, norm of total tangential displacement (the paper's "slip")
+    slip_path: np.ndarray  # (n_lower,) m, accumulated path length
+    gap: np.ndarray  # (n_lower,) m, normal gap at the end of the step
+    node_status: np.ndarray  # (n_lower,) NodeStatus values
+    upper_centroid: np.ndarray  # (3,) cumulative displacement, m
+    lower_centroid: np.ndarray  # (3,) cumulative displacement, m
+    lower_yaw: float  # rad, best-fit planar rotation of the lower face
+    twist: float  # rad, signed angle from the upper to the lower in-plane centroid displacement
+    lag: np.ndarray  # (2,) m, upper minus lower in-plane centroid displacement
+    normal_force: float  # N, total normal contact force (> 0 in compression)
+    tangential_force: np.ndarray  # (2,) N, world x, y total friction force on the block
+    upper_force: np.ndarray  # (3,) N, total force the upper-face drive applies on the block
+    equilibrium_error: float  # |sum contact + upper forces| / force scale of the step
+    dissipation: float  # J, frictional dissipation of the step (>= 0)
+    newton_iterations: int
+    contact_iterations: int  # total local-solver iterations over the step
+    newton_residual: float
+    contact_residual: float
+    min_det_f: float
+    wall_time: float  # s
+    iterations: tuple[IterLog, ...] = ()
+    tangent_updates: int = 0  # flexibility matrices computed in the step
+    timings: dict = field(default_factory=dict)  # s per phase: assembly, tangent, local, solve
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
+
+    @property
+    def n_stick(self) -> int:
+        return int(np.count_nonzero(self.node_status == NodeStatus.STICK))
+
+    @property
+    def n_slip(self) -> int:
+        return int(np.count_nonzero(self.node_status == NodeStatus.SLIP))
+
+    @property
+    def n_separated(self) -> int:
+        return int(np.count_nonzero(self.node_status == NodeStatus.SEPARATED))

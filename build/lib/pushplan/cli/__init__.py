@@ -1,0 +1,50 @@
+"""Command-line interface: ``pushplan <command> ...``, one thin module per command.
+
+Exit status: 0 success; 2 bad input (:class:`~pushplan.errors.InputError`: one line,
+nothing written); 3 solver failure (:class:`~pushplan.errors.SolverFailure` or a run
+that stopped: message on stderr, the finished part kept); anything else is a bug
+and shows its traceback (exit 1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, InputError, SolverFailure
+
+# each module has ``register(subparsers)`` and imports its heavy dependencies
+# (numpy, fe_contact, casadi, mujoco, rerun) inside the command function only
+COMMAND_MODULES = ("simulate", "demo", "paper", "plan", "replay", "mujoco", "sweep")
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_SOLVER_FAILURE", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pushplan",
+        description="Pushing deformable blocks over anisotropic-friction surfaces "
+        "(FE model of Feng, Hjiaj, de Saxce, Mroz 2006).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except InputError as exc:
+        print(f"pushplan: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SolverFailure as exc:
+        print(f"pushplan: solver failure: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE

@@ -1,0 +1,3 @@
+"""Transitional: registers the commands of pushplan.studies.sweep."""
+
+from ..studies.sweep import register  # noqa: F401

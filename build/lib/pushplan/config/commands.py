@@ -1,0 +1,79 @@
+"""The one codec of upper-face commands between ``fe_contact.Command`` (m, rad) and
+files (``{"dx": m, "dy": m, "dz": m, "dtheta_deg": deg}``), used by scenarios,
+``plan.json``, summaries, recordings and the MuJoCo bridge.
+
+A command file is any JSON object with a ``commands`` list (a ``plan.json``),
+re-executable with ``pushplan simulate SCENARIO --commands FILE``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from fe_contact import Command
+
+from ..errors import InputError
+from .files import read_json
+from .validate import Table
+
+COMMAND_KEYS = ("dx", "dy", "dz", "dtheta_deg")
+
+
+def degrees_exact(angle: float) -> float:
+    """``angle`` (rad) in degrees, chosen among the nearest floats so that
+    ``math.radians`` gives ``angle`` back exactly where such a float exists
+    (a file written and read again then holds the same command, bit for bit)."""
+    d = math.degrees(angle)
+    candidate = d
+    for _ in range(4):
+        if math.radians(candidate) == angle:
+            return candidate
+        candidate = math.nextafter(candidate, math.inf if math.radians(candidate) < angle else -math.inf)
+    return d
+
+
+def command_to_dict(c: Command) -> dict:
+    return {"dx": c.dx, "dy": c.dy, "dz": c.dz, "dtheta_deg": degrees_exact(c.dtheta)}
+
+
+def command_from_dict(item, key: str) -> Command:
+    """A command from its dict; missing components are 0; ``key`` names it in messages."""
+    t = Table(item, key, COMMAND_KEYS)
+    dx, dy, dz, dtheta_deg = (t.number(k, 0.0) for k in COMMAND_KEYS)
+    return Command(dx, dy, dz, math.radians(dtheta_deg))
+
+
+def commands_to_list(commands) -> list[dict]:
+    return [command_to_dict(c) for c in commands]
+
+
+def commands_from_list(items, key: str = "commands") -> tuple[Command, ...]:
+    if not isinstance(items, list):
+        raise InputError(f"{key} must be a list of commands, got {type(items).__name__}")
+    return tuple(command_from_dict(item, f"{key}[{i}]") for i, item in enumerate(items))
+
+
+def planar_commands(array) -> tuple[Command, ...]:
+    """Commands from an (K, 3) array of in-plane increments ``(dx, dy, dtheta)`` (m, rad)."""
+    return tuple(Command(dx=float(c[0]), dy=float(c[1]), dtheta=float(c[2])) for c in np.asarray(array, float))
+
+
+def load_commands(path) -> tuple[Command, ...]:
+    """The ``commands`` list of a JSON file (a ``plan.json``).
+
+    Raises
+    ------
+    InputError
+        Missing or malformed file, no ``commands`` list, or a bad entry (named).
+    """
+    path = Path(path)
+    data = read_json(path, "commands")
+    if not isinstance(data, dict) or "commands" not in data:
+        raise InputError(f"{path}: expected an object with a 'commands' list")
+    try:
+        return commands_from_list(data["commands"])
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None

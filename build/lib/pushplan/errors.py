@@ -1,0 +1,25 @@
+"""The two outcomes a user is told about without a traceback, and their exit statuses.
+
+``InputError``   bad input (a file, a key, a value): one line naming it, exit 2,
+                 nothing written.
+``SolverFailure`` the model or the planner did not converge: exit 3, the finished
+                 part of the run is kept.
+
+Anything else raised inside ``pushplan`` is a bug: the CLI lets it through with its
+traceback (exit 1).  ``InputError`` is a ``ValueError`` so that library callers can
+catch bad input the usual way; the CLI catches ``InputError`` only, never a bare
+``ValueError``.
+"""
+
+from __future__ import annotations
+
+EXIT_BAD_INPUT = 2
+EXIT_SOLVER_FAILURE = 3
+
+
+class InputError(ValueError):
+    """Bad input; the message names the file, key or value (one line)."""
+
+
+class SolverFailure(RuntimeError):
+    """A solver or planner did not reach its tolerance; the message says which and why."""

@@ -1,0 +1,402 @@
+"""rerun recordings of pushes and plans (read back by :mod:`pushplan.outputs.recording_read`).
+
+One :class:`Recorder` per run writes one ``.rrd`` file through its own
+``rerun.RecordingStream`` (no global state, no viewer needed).  The file is
+written under a temporary name and renamed by :meth:`Recorder.close`, so a
+reader never sees half a recording.
+
+Timelines: ``step`` (sequence, load-step index; step 0 is the undeformed block)
+and ``load`` (sequence, cumulative travel of the upper-face centre in
+nanometres, i.e. the sum of ``sqrt(dx^2 + dy^2 + dz^2)`` over the commands).
+Plan data use ``planner_iteration``.  World coordinates in m, z up; the lower
+face starts centred on the origin.
+
+Entities (``Archetype:field`` columns in the file)::
+
+    world/block          Mesh3D: surface of the deformed block; triangles static,
+                         vertex positions and colours per step.  Lower-face
+                         vertices are coloured by ``field`` (viridis, 0 -> dark
+                         blue, per-step maximum -> yellow), other vertices grey.
+    world/upper_face     LineStrips3D: centroid trajectory; Points3D: current centroid.
+    world/lower_face     same for the lower face.
+    world/contact        Arrows3D: contact force on each lower node (longest arrow
+                         = half the block height); Points3D with class ids
+                         0 stick / 1 slip / 2 separated (AnnotationContext).
+    legend               TextDocument per step: colour scale and arrow scale.
+    plots/twist_deg, plots/lower_yaw_deg, plots/normal_force (N),
+    plots/tangential_force (N, x and y), plots/newton_iterations,
+    plots/contact_iterations    Scalars per step.
+    log                  TextLog: one line per step, errors for failed steps.
+    run/info             TextDocument (static): JSON ``{"run_name", "field", "scenario"}``.
+    run/step             AnyValues per step: the command ``dx, dy, dz`` (m),
+                         ``dtheta_deg`` and the centroid displacements
+                         ``lower_centroid``, ``upper_centroid`` (m, float64);
+                         what ``pushplan replay`` re-executes and compares.
+
+Plans (:meth:`Recorder.log_plan`, for the planner)::
+
+    recorder.log_plan(target=(x, y, yaw), predicted=P, verified=V, naive=N, cost=c)
+
+    target      (2,) or (3,): lower-face target pose (x, y[, yaw]), m and rad.
+    predicted, verified, naive
+                (n, 2) or (n, 3): lower-face poses (x, y[, yaw]) per step, m and
+                rad, row 0 the pose before the first command.
+    cost        (n_iter,): planner objective per planner iteration.
+
+Every argument is optional; each call replaces what an earlier call logged
+(``plan/target`` as a footprint box, ``plan/predicted``, ``plan/verified``,
+``plan/naive`` as line strips with points and yaw arrows, ``plots/planner_cost``
+on ``planner_iteration``).  A plan run logs its FE-verified rollout with
+:meth:`Recorder.log_step` so that ``pushplan replay`` can re-execute it.
+
+Determinism: the recording id is derived from the run name and the wall-clock
+``log_time`` timeline and start-time property are left out unless the
+environment sets ``RERUN_LOG_TIME`` to 1 / true / on / yes, so two runs of
+the same scenario differ only in row and chunk ids
+(``rerun rrd compare --unordered`` reports them equal).
+
+rerun is imported inside functions only, so importing this module (for the CLI
+parser) stays cheap.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from fe_contact import BlockMesh, StepReport
+from fe_contact.mesh import surface_quads
+
+from ..config.commands import command_to_dict
+from .atomic import commit_temporary, reserve_temporary
+
+RECORDING_FILE = "recording.rrd"
+APPLICATION_ID = "pushplan"
+FIELDS = {  # name: (description, display unit, factor SI -> display unit)
+    "slip": ("accumulated slip (norm of the total tangential displacement)", "um", 1e6),
+    "slip_path": ("slip path length", "um", 1e6),
+    "pressure": ("contact pressure", "MPa", 1e-6),
+}
+_NAMESPACE = uuid.UUID("5f0d4f52-3c1e-4a8b-9a59-8f2b7d2f6a10")  # fixed: recording id = uuid5(run name)
+_VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
+_GREY = np.array([170, 170, 170], np.uint8)
+_STATUS_CLASSES = ((0, "stick", (40, 160, 70)), (1, "slip", (230, 120, 20)), (2, "separated", (140, 140, 140)))
+_PLOTS = ("twist_deg", "lower_yaw_deg", "normal_force", "tangential_force", "newton_iterations",
+          "contact_iterations")
+_PLAN_COLOURS = {"predicted": (80, 140, 255), "verified": (40, 200, 80), "naive": (230, 60, 60)}
+
+
+def recording_id(run_name: str) -> str:
+    """Deterministic recording id (UUID5 string) of a run name."""
+    return str(uuid.uuid5(_NAMESPACE, run_name))
+
+
+def colormap(values: np.ndarray, vmax: float) -> np.ndarray:
+    """Viridis colours (n, 3) uint8 of ``values`` on the scale ``[0, vmax]``."""
+    t = np.clip(np.asarray(values, float) / vmax, 0.0, 1.0) if vmax > 0 else np.zeros(np.shape(values))
+    knots = np.linspace(0.0, 1.0, len(_VIRIDIS))
+    rgb = np.stack([np.interp(t, knots, _VIRIDIS[:, c]) for c in range(3)], axis=-1)
+    return np.round(rgb).astype(np.uint8)
+
+
+def _surface(mesh: BlockMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Surface node ids (n_v,) and triangles (n_t, 3) indexing them."""
+    quads = surface_quads(mesh)
+    nodes, inverse = np.unique(quads, return_inverse=True)
+    q = inverse.reshape(quads.shape)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=0)
+    return nodes, tris.astype(np.uint32)
+
+
+def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (n_v, 3): area-weighted sum of the adjacent triangle normals."""
+    p = positions[triangles]  # (n_t, 3 corners, 3)
+    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normals = np.zeros_like(positions)
+    np.add.at(normals, triangles.ravel(), np.repeat(face, 3, axis=0))
+    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def _poses(name: str, value) -> np.ndarray:
+    a = np.asarray(value, dtype=float)
+    if a.ndim != 2 or a.shape[1] not in (2, 3) or a.shape[0] < 1:
+        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite")
+    return a
+
+
+class Recorder:
+    """rerun recording of one run (see the module docstring for its content).
+
+    Parameters
+    ----------
+    path : path
+        ``.rrd`` file to write; its folder must exist.
+    run_name : str
+        Names the recording and fixes its recording id.
+    mesh : fe_contact.BlockMesh
+        Mesh of the model whose steps are logged.
+    field : str
+        Lower-face colour field, one of ``FIELDS``.
+    scenario : dict, optional
+        Resolved scenario (``Scenario.to_dict()``, as in ``summary.json``); stored so
+        that ``pushplan replay`` can rebuild the model.  ``block.elements`` and
+        ``block.size`` are taken from ``mesh``.
+
+    Raises
+    ------
+    ValueError
+        Bad field, run name, mesh or path.
+    """
+
+    def __init__(self, path, run_name: str, mesh: BlockMesh, field: str = "slip", scenario: dict | None = None):
+        import rerun as rr
+
+        if field not in FIELDS:
+            raise ValueError(f"field must be one of {tuple(FIELDS)}, got {field!r}")
+        if not isinstance(run_name, str) or not run_name:
+            raise ValueError(f"run_name must be a non-empty string, got {run_name!r}")
+        if not isinstance(mesh, BlockMesh):
+            raise ValueError(f"mesh must be a fe_contact.BlockMesh, got {type(mesh).__name__}")
+        self.path = Path(path)
+        if not self.path.parent.is_dir():
+            raise ValueError(f"recording folder does not exist: {self.path.parent}")
+        self._rr = rr
+        self.mesh = mesh
+        self.field = field
+        self.run_name = run_name
+        self._surface_nodes, self._triangles = _surface(mesh)
+        lower_pos = np.full(mesh.n_nodes, -1)
+        lower_pos[mesh.lower] = np.arange(mesh.lower.size)
+        self._surface_lower = lower_pos[self._surface_nodes]  # (n_v,) index into lower arrays, -1 elsewhere
+        self._lower_ref = mesh.nodes[mesh.lower].mean(axis=0)
+        self._upper_ref = mesh.nodes[mesh.upper].mean(axis=0)
+        self._lower_traj = [self._lower_ref]
+        self._upper_traj = [self._upper_ref]
+        self._travel = 0.0
+
+        self._tmp = reserve_temporary(self.path)
+        log_time = os.environ.get("RERUN_LOG_TIME", "").strip().lower() in ("1", "true", "on", "yes")
+        try:
+            # chunks are cut by the explicit flush after each step only, never by a
+            # wall-clock tick, so two runs chunk their data identically
+            self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id(run_name),
+                                             send_properties=log_time,
+                                             batcher_config=rr.ChunkBatcherConfig.NEVER())
+            self.stream.set_log_time_enabled(log_time)
+            self.stream.save(self._tmp, default_blueprint=self._blueprint(plan=False))
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            raise
+        self.stream.send_recording_name(run_name)
+
+        spec = None
+        if scenario is not None:
+            spec = json.loads(json.dumps(scenario))  # deep copy, JSON-ready
+            spec.setdefault("block", {}).update(elements=list(mesh.divisions), size=list(mesh.size))
+        log = self.stream.log
+        log("run/info", rr.TextDocument(json.dumps({"run_name": run_name, "field": field, "scenario": spec}),
+                                        media_type=rr.MediaType.TEXT), static=True)
+        log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        log("world/block", rr.Mesh3D.from_fields(triangle_indices=self._triangles), static=True)
+        log("world/contact", rr.AnnotationContext(list(_STATUS_CLASSES)), static=True)
+        log("plots/tangential_force", rr.SeriesLines(names=["x", "y"]), static=True)
+        self._closed = False
+        self._log_reference()
+
+    # -- blueprint ---------------------------------------------------------------------
+    def _blueprint(self, plan: bool):
+        import rerun.blueprint as rrb
+
+        plots = [rrb.TimeSeriesView(origin=f"/plots/{p}", name=p) for p in _PLOTS]
+        if plan:
+            plots.append(rrb.TimeSeriesView(origin="/plots/planner_cost", name="planner_cost"))
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.Spatial3DView(origin="/", contents=["/world/**", "/plan/**"], name="block"),
+                    rrb.Horizontal(rrb.TextLogView(origin="/log", name="log"),
+                                   rrb.TextDocumentView(origin="/legend", name="legend")),
+                    row_shares=[3, 1],
+                ),
+                rrb.Grid(*plots, grid_columns=2),
+                column_shares=[3, 2],
+            ),
+            collapse_panels=True,
+        )
+
+    # -- steps -------------------------------------------------------------------------
+    def _set_step(self, k: int) -> None:
+        self.stream.set_time("step", sequence=int(k))
+        self.stream.set_time("load", sequence=int(round(self._travel * 1e9)))
+
+    def _log_reference(self) -> None:
+        rr = self._rr
+        self._set_step(0)
+        colours = np.broadcast_to(_GREY, (self._surface_nodes.size, 3)).copy()
+        colours[self._surface_lower >= 0] = colormap(np.zeros(1), 0.0)[0]
+        positions = self.mesh.nodes[self._surface_nodes]
+        self.stream.log("world/block", rr.Mesh3D.from_fields(
+            vertex_positions=positions, vertex_normals=vertex_normals(positions, self._triangles),
+            vertex_colors=colours))
+        for name, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
+            self.stream.log(f"world/{name}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
+        self.stream.flush()
+
+    def log_step(self, report: StepReport, summary=None) -> None:
+        """Log one load step.
+
+        Parameters
+        ----------
+        report : fe_contact.StepReport
+            A failed step is logged as an error line only (its state was rejected).
+        summary : pushplan.run.StepSummary
+            The step's summary (required for a converged step): the plotted numbers
+            are taken from it so they equal ``summary.json``.
+        """
+        rr = self._rr
+        if self._closed:
+            raise ValueError(f"recording {self.path} is closed")
+        if not isinstance(report, StepReport):
+            raise ValueError(f"report must be a fe_contact.StepReport, got {type(report).__name__}")
+        c = report.command
+        if not report.converged:
+            self._set_step(report.step_index)
+            self.stream.log("log", rr.TextLog(
+                f"step {report.step_index} failed ({report.status.value}): {report.message}",
+                level=rr.TextLogLevel.ERROR))
+            self.stream.flush()
+            return
+        if summary is None or summary.step != report.step_index:
+            raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
+        self._travel += math.sqrt(c.dx**2 + c.dy**2 + c.dz**2)
+        self._set_step(report.step_index)
+        deformed = self.mesh.nodes + report.displacement
+        legend = [self._log_block(report, deformed), self._log_trajectories(report),
+                  self._log_contact(report, deformed)]
+        self.stream.log("legend", rr.TextDocument(f"## step {report.step_index}\n\n" + "\n\n".join(legend),
+                                                  media_type=rr.MediaType.MARKDOWN))
+        self._log_numbers(report, summary)
+        self.stream.flush()
+
+    def _log_block(self, report: StepReport, deformed: np.ndarray) -> str:
+        """Block surface coloured by the chosen lower-face field; returns its legend line."""
+        rr = self._rr
+        name, unit, factor = FIELDS[self.field]
+        values = np.asarray(getattr(report, self.field), float)
+        vmax = float(values.max()) if values.size else 0.0
+        on_lower = self._surface_lower >= 0
+        colours = np.broadcast_to(_GREY, (self._surface_nodes.size, 3)).copy()
+        colours[on_lower] = colormap(values[self._surface_lower[on_lower]], vmax)
+        positions = deformed[self._surface_nodes]
+        self.stream.log("world/block", rr.Mesh3D.from_fields(
+            vertex_positions=positions, vertex_normals=vertex_normals(positions, self._triangles),
+            vertex_colors=colours))
+        return (f"**block colour**: {name} on the lower face, viridis from 0 {unit} (dark blue) to "
+                f"{vmax * factor:.6g} {unit} (yellow); other faces grey.")
+
+    def _log_trajectories(self, report: StepReport) -> str:
+        rr = self._rr
+        self._lower_traj.append(self._lower_ref + np.asarray(report.lower_centroid))
+        self._upper_traj.append(self._upper_ref + np.asarray(report.upper_centroid))
+        for face, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
+            self.stream.log(f"world/{face}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
+        return "**lines**: centroid trajectories of the upper and lower faces."
+
+    def _log_contact(self, report: StepReport, deformed: np.ndarray) -> str:
+        """Contact force arrows and node status points; returns their legend lines."""
+        rr = self._rr
+        forces = np.asarray(report.reaction_world, float)
+        fmax = float(np.linalg.norm(forces, axis=1).max()) if forces.size else 0.0
+        scale = 0.5 * self.mesh.size[2] / fmax if fmax > 0 else 0.0
+        origins = deformed[self.mesh.lower]
+        self.stream.log("world/contact", rr.Arrows3D(origins=origins, vectors=forces * scale),
+                        rr.Points3D(origins, class_ids=np.asarray(report.node_status, np.uint16),
+                                    radii=rr.Radius.ui_points(3.0)))
+        return (f"**contact arrows**: force on the block, {scale * 1e3:.6g} mm per N "
+                f"(longest {fmax:.6g} N).\n\n"
+                f"**contact points**: green stick, orange slip, grey separated.")
+
+    def _log_numbers(self, report: StepReport, summary) -> None:
+        """Plots, the replayable ``run/step`` row and the log line."""
+        rr, c, log = self._rr, report.command, self.stream.log
+        for p in _PLOTS:
+            log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(getattr(summary, p), float))))
+        log("run/step", rr.AnyValues(
+            **command_to_dict(c),
+            lower_centroid=np.asarray(report.lower_centroid, float),
+            upper_centroid=np.asarray(report.upper_centroid, float)))
+        log("log", rr.TextLog(
+            f"step {report.step_index}: command ({c.dx:.6g}, {c.dy:.6g}, {c.dz:.6g}) m, "
+            f"{math.degrees(c.dtheta):.6g} deg; twist {summary.twist_deg:.4f} deg, "
+            f"lower yaw {summary.lower_yaw_deg:.4f} deg, N {summary.normal_force:.6g} N, "
+            f"newton {report.newton_iterations}, contact {report.contact_iterations}",
+            level=rr.TextLogLevel.INFO))
+
+    # -- plans -------------------------------------------------------------------------
+    def log_plan(self, target=None, predicted=None, verified=None, naive=None, cost=None) -> None:
+        """Log a plan (see the module docstring for shapes and units).
+
+        Raises
+        ------
+        ValueError
+            A pose array of the wrong shape or with non-finite values.
+        """
+        rr = self._rr
+        if self._closed:
+            raise ValueError(f"recording {self.path} is closed")
+        log = self.stream.log
+        lx, ly, _ = self.mesh.size
+        arrow = 0.25 * min(lx, ly)
+        if target is not None:
+            t = np.asarray(target, float).ravel()
+            if t.shape not in ((2,), (3,)) or not np.all(np.isfinite(t)):
+                raise ValueError(f"target must be (x, y) or (x, y, yaw) finite numbers, got {target!r}")
+            yaw = float(t[2]) if t.size == 3 else 0.0
+            log("plan/target", rr.Boxes3D(
+                centers=[[t[0], t[1], 0.0]], half_sizes=[[lx / 2, ly / 2, 0.0]],
+                rotation_axis_angles=[rr.RotationAxisAngle(axis=[0, 0, 1], radians=yaw)],
+                colors=[(255, 200, 0)], labels=["target"]), static=True)
+        for name, value in (("predicted", predicted), ("verified", verified), ("naive", naive)):
+            if value is None:
+                continue
+            poses = _poses(name, value)
+            xyz = np.column_stack([poses[:, :2], np.zeros(len(poses))])
+            colour = _PLAN_COLOURS[name]
+            archetypes = [rr.LineStrips3D([xyz], colors=[colour], labels=[name]), rr.Points3D(xyz, colors=[colour])]
+            if poses.shape[1] == 3:
+                heading = arrow * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2]), np.zeros(len(poses))])
+                archetypes.append(rr.Arrows3D(origins=xyz, vectors=heading, colors=[colour]))
+            log(f"plan/{name}", *archetypes, static=True)
+        if cost is not None:
+            c = np.asarray(cost, float).ravel()
+            if c.size == 0:
+                raise ValueError("cost must hold at least one value")
+            self.stream.send_columns(
+                "plots/planner_cost",
+                indexes=[rr.TimeColumn("planner_iteration", sequence=np.arange(c.size))],
+                columns=rr.Scalars.columns(scalars=c),
+            )
+            self.stream.send_blueprint(self._blueprint(plan=True), make_active=False, make_default=True)
+
+    # -- closing -----------------------------------------------------------------------
+    def close(self) -> Path:
+        """Flush, disconnect and move the finished file into place; returns its path."""
+        if not self._closed:
+            self._closed = True
+            self.stream.flush()
+            self.stream.disconnect()
+            commit_temporary(self._tmp, self.path)
+        return self.path
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,278 @@
+"""Reduced model of a push: the block as one elastic-plastic contact "spring".
+
+In a push the lower face moves almost rigidly while the upper face leads it by an
+elastic lag.  The reduced model keeps exactly that: a generalised drive force
+``g = (f_x, f_y, tau)`` (N, N, N m) transmitted through the block, an elastic lag
+between the upper- and lower-face poses
+
+    U - P = W g,      W = diag(C, C, C_theta)   (m/N, m/N, rad/(N m)),
+
+and a frictional limit surface in the generalised force space, elliptic in the
+orthotropy frame of the plane (the paper's cone ``||M^-1 r_t|| <= r_n`` summed over
+the face) and closed by the torsional limit ``tau_max``:
+
+    F(g) = sqrt(f_1^2 / (N mu_x)^2 + f_2^2 / (N mu_y)^2 + tau^2 / tau_max^2) <= 1,
+
+with ``(f_1, f_2)`` the force in the frame ``(t_x, t_y)``.  The lower face slips
+along the normal of the limit surface (associated slip, paper eq. 23-30), so a
+load step is the backward-Euler return mapping of perfect plasticity: closest-point
+projection of the trial force onto the ellipsoid in the compliance metric.  In
+steady sliding this reproduces the lag ``L(s) = C N M^2 s / ||M s||`` of the
+elliptic law for a slip direction ``s``.
+
+The parameters are calibrated from FE rollouts (:func:`calibrate`); translation-only
+models leave the torsional parameters unset and ignore rotation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fe_contact import StepReport
+
+PROJECTION_TOL = 1e-13
+"""Relative tolerance of the scalar Newton solve of the ellipsoid projection."""
+
+
+def _positive(name: str, value) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class PushParameters:
+    """Calibrated parameters of the reduced push model (SI units).
+
+    Parameters
+    ----------
+    mu_x, mu_y : float
+        Principal friction coefficients of the plane (> 0).
+    angle : float
+        Orthotropy axis ``t_x`` from world x, rad.
+    normal_force : float
+        Normal force carried by the lower face while pushing, N.
+    compliance : float
+        In-plane shear compliance of the block, lag per drive force, m/N.
+    torsion_compliance : float or None
+        Yaw lag per drive torque, rad/(N m); None for a translation-only model.
+    max_torque : float or None
+        Torque of pure torsional sliding, N m; None for a translation-only model.
+    """
+
+    mu_x: float
+    mu_y: float
+    angle: float
+    normal_force: float
+    compliance: float
+    torsion_compliance: float | None = None
+    max_torque: float | None = None
+
+    def __post_init__(self):
+        for name in ("mu_x", "mu_y", "normal_force", "compliance"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+        a = float(self.angle)
+        if not math.isfinite(a):
+            raise ValueError(f"angle must be finite, got {self.angle!r}")
+        object.__setattr__(self, "angle", a)
+        if (self.torsion_compliance is None) != (self.max_torque is None):
+            raise ValueError("torsion_compliance and max_torque go together (both set or both None)")
+        if self.torsion_compliance is not None:
+            for name in ("torsion_compliance", "max_torque"):
+                object.__setattr__(self, name, _positive(name, getattr(self, name)))
+
+    @property
+    def rotation(self) -> bool:
+        """Whether the model has the torsional degree of freedom."""
+        return self.torsion_compliance is not None
+
+    @property
+    def frame(self) -> np.ndarray:
+        """(2, 2) rotation from the orthotropy frame ``(t_x, t_y)`` to world ``(x, y)``."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        return np.array([[c, -s], [s, c]])
+
+    @property
+    def lag_scale(self) -> float:
+        """Steady-sliding lag along the weaker friction axis, ``C N min(mu)``, m."""
+        return self.compliance * self.normal_force * min(self.mu_x, self.mu_y)
+
+    def to_dict(self) -> dict:
+        return {
+            "mu_x": self.mu_x, "mu_y": self.mu_y, "angle_deg": math.degrees(self.angle),
+            "normal_force": self.normal_force, "compliance": self.compliance,
+            "torsion_compliance": self.torsion_compliance, "max_torque": self.max_torque,
+        }
+
+
+def steady_lag(params: PushParameters, direction) -> np.ndarray:
+    """Steady-sliding lag of the upper face over the lower face (translation only).
+
+    ``L(s) = C N R M^2 R^T s / ||M R^T s||`` for a slip direction ``s``.
+
+    Parameters
+    ----------
+    direction : (2,) array
+        Slip direction of the lower face in world x, y (any non-zero length).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Lag, m.
+    """
+    s = np.asarray(direction, float)
+    if s.shape != (2,) or not np.all(np.isfinite(s)) or not np.any(s):
+        raise ValueError(f"direction must be a finite non-zero (2,) vector, got {direction!r}")
+    R = params.frame
+    m = np.array([params.mu_x, params.mu_y])
+    local = R.T @ s
+    return params.compliance * params.normal_force * (R @ (m**2 * local)) / np.linalg.norm(m * local)
+
+
+def _project(g_trial: np.ndarray, w: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Closest point of the ellipsoid ``sum(q g^2) <= 1`` to ``g_trial`` in the
+    metric ``diag(w)`` (all in the orthotropy frame).  ``g_i = g_tr_i / (1 + gamma
+    q_i / w_i)`` with the scalar ``gamma >= 0`` found by Newton's method, which
+    converges monotonically from 0 as the constraint is convex and decreasing."""
+    if (q * g_trial**2).sum() <= 1.0:
+        return g_trial
+    gamma = 0.0
+    r = q / w
+    for _ in range(200):
+        d = 1.0 + gamma * r
+        phi = (q * g_trial**2 / d**2).sum() - 1.0
+        if phi <= PROJECTION_TOL:
+            break
+        dphi = (-2.0 * q * g_trial**2 * r / d**3).sum()
+        gamma -= phi / dphi
+    return g_trial / (1.0 + gamma * r)
+
+
+@dataclass(frozen=True)
+class ReducedTrajectory:
+    """Reduced-model response to a command sequence (row 0 = after the press).
+
+    Attributes
+    ----------
+    upper, lower : ndarray, shape (K + 1, 3)
+        Upper- and lower-face poses ``(x, y, yaw)``, m and rad.
+    force : ndarray, shape (K + 1, 3)
+        Generalised drive force ``(f_x, f_y, tau)`` in world axes, N and N m.
+    sliding : ndarray, shape (K + 1,) of bool
+        Whether the lower face slips in the step.
+    """
+
+    upper: np.ndarray
+    lower: np.ndarray
+    force: np.ndarray
+    sliding: np.ndarray
+
+
+def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
+    """Run upper-face commands through the reduced model from the pressed, unloaded state.
+
+    Parameters
+    ----------
+    commands : array, shape (K, 3)
+        Upper-face increments ``(dx, dy, dtheta)``, m and rad; ``dtheta`` must be 0
+        for a translation-only model.
+
+    Returns
+    -------
+    ReducedTrajectory
+    """
+    u = np.asarray(commands, float)
+    if u.ndim != 2 or u.shape[1] != 3 or not np.all(np.isfinite(u)):
+        raise ValueError(f"commands must be a finite (K, 3) array, got shape {np.shape(commands)}")
+    if not params.rotation and np.any(u[:, 2] != 0):
+        raise ValueError("commands rotate the upper face but the model has no torsional parameters")
+    R = params.frame
+    n = params.normal_force
+    if params.rotation:
+        w = np.array([params.compliance, params.compliance, params.torsion_compliance])
+        q = 1.0 / np.array([n * params.mu_x, n * params.mu_y, params.max_torque]) ** 2
+    else:
+        w = np.array([params.compliance, params.compliance, 1.0])
+        q = np.array([1.0 / (n * params.mu_x) ** 2, 1.0 / (n * params.mu_y) ** 2, 0.0])
+    K = len(u)
+    upper = np.zeros((K + 1, 3))
+    lower = np.zeros((K + 1, 3))
+    force = np.zeros((K + 1, 3))
+    sliding = np.zeros(K + 1, dtype=bool)
+    g_local = np.zeros(3)
+    for k in range(K):
+        upper[k + 1] = upper[k] + u[k]
+        lag = upper[k + 1] - lower[k]  # trial lag: the lower face has not moved yet
+        lag_local = np.array([*(R.T @ lag[:2]), lag[2]])
+        trial = lag_local / w
+        g_local = _project(trial, w, q)
+        sliding[k + 1] = not np.array_equal(g_local, trial)
+        lag_local = w * g_local
+        lag_local[2] *= params.rotation
+        lower[k + 1] = upper[k + 1] - np.array([*(R @ lag_local[:2]), lag_local[2]])
+        force[k + 1] = np.array([*(R @ g_local[:2]), g_local[2] * params.rotation])
+    return ReducedTrajectory(upper=upper, lower=lower, force=force, sliding=sliding)
+
+
+def lower_face_torque(model, report: StepReport) -> float:
+    """Drive torque on the block about the deformed lower-face centroid, N m:
+    minus the moment of the contact forces (the upper face balances them)."""
+    mesh = model.mesh
+    X = mesh.nodes[mesh.lower] + report.displacement[mesh.lower]
+    a = model.lower_area
+    c = (a[:, None] * X).sum(axis=0) / a.sum()
+    r = report.reaction_world
+    return -float(((X[:, 0] - c[0]) * r[:, 1] - (X[:, 1] - c[1]) * r[:, 0]).sum())
+
+
+def calibrate(model, push_reports, twist_reports=None) -> PushParameters:
+    """Fit the reduced model to FE rollouts on one mesh.
+
+    Parameters
+    ----------
+    model : fe_contact.Model
+        The model the reports come from (friction, mesh).
+    push_reports : sequence of StepReport
+        The push steps (after the press) of an in-plane push.  The compliance is the
+        least-squares ratio of the centroid lag to the drive force over all steps
+        (elastic in stick and slip alike); the normal force is the last step's.
+    twist_reports : sequence of StepReport, optional
+        The steps of a pure rotation of the upper face from the pressed, unrotated
+        state, long enough to slide: the
+        torsional compliance is the least-squares ratio of the yaw lag to the drive
+        torque, ``max_torque`` the last step's torque.  Without it the model is
+        translation-only.
+
+    Raises
+    ------
+    ValueError
+        Empty or failed rollouts, or a rollout that transmits no force.
+    """
+    fr = model.friction
+    if not push_reports:
+        raise ValueError("push_reports is empty: calibration needs at least one push step")
+    for rep in list(push_reports) + list(twist_reports or []):
+        if not rep.converged:
+            raise ValueError(f"calibration step {rep.step_index} did not converge ({rep.status.value})")
+    lag = np.array([r.lag for r in push_reports])
+    force = -np.array([r.tangential_force for r in push_reports])
+    ff = float((force * force).sum())
+    if ff <= 0:
+        raise ValueError("calibration push transmits no tangential force (block not pressed?)")
+    compliance = float((lag * force).sum()) / ff
+    kwargs = {}
+    if twist_reports:
+        theta = np.cumsum([r.command.dtheta for r in twist_reports])
+        yaw = np.array([r.lower_yaw for r in twist_reports])
+        torque = np.array([lower_face_torque(model, r) for r in twist_reports])
+        kwargs = {
+            "torsion_compliance": float(((theta - yaw) * torque).sum() / (torque * torque).sum()),
+            "max_torque": abs(float(torque[-1])),
+        }
+    return PushParameters(mu_x=fr.mu_x, mu_y=fr.mu_y, angle=fr.angle,
+                          normal_force=push_reports[-1].normal_force, compliance=compliance, **kwargs)
+

@@ -1,0 +1,138 @@
+"""The one loop that drives ``fe_contact`` through a sequence of commands.
+
+Every caller (``simulate``, the planner's rollouts, the MuJoCo bridge, the studies)
+runs its steps through :func:`drive`; what it does with each step is an *observer*:
+
+    class Observer:
+        def step(self, run: Run, report: StepReport) -> None: ...      # after every step
+        def local_problem(self, W, q, solution) -> None: ...           # optional: each local solve
+        def finish(self, run: Run) -> None: ...                        # optional: after the last step
+        def close(self, run: Run) -> None: ...                         # optional: always, last
+
+``run.summary`` is up to date when an observer sees a step.  A step that does not
+converge ends the run with a :class:`Failure` (its state is not kept); ``drive`` never
+turns an exception into a status: ``fe_contact.step`` reports numerical breakdowns as
+statuses itself, so anything raised here is a bug and propagates.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from fe_contact import Command, Model, State, StepReport, initial_state, step
+
+from ..errors import InputError
+from .summary import Failure, RunStatus, RunSummary, StepSummary
+
+
+@dataclass
+class Run:
+    """A run in progress or finished.
+
+    Attributes
+    ----------
+    model : fe_contact.Model
+    state : fe_contact.State
+        The last good state.
+    reports : list of StepReport
+        Every step's report, the failed one last if any.
+    states : list of State
+        With ``keep_states``: the start state, then the state after each converged step.
+    summary : RunSummary
+    """
+
+    model: Model
+    state: State
+    summary: RunSummary
+    reports: list[StepReport] = field(default_factory=list)
+    states: list[State] = field(default_factory=list)
+
+    @property
+    def completed(self) -> bool:
+        return self.summary.completed
+
+    @property
+    def converged_reports(self) -> list[StepReport]:
+        return [r for r in self.reports if r.converged]
+
+
+def _hook(observers):
+    targets = [o.local_problem for o in observers if hasattr(o, "local_problem")]
+    if not targets:
+        return None
+
+    def hook(W, q, solution):
+        for target in targets:
+            target(W, q, solution)
+
+    return hook
+
+
+def _call(observers, name: str, run: Run) -> None:
+    for o in observers:
+        if hasattr(o, name):
+            getattr(o, name)(run)
+
+
+def drive(model: Model, commands, state: State | None = None, *, scenario: dict | None = None,
+          observers=(), keep_states: bool = False) -> Run:
+    """Apply ``commands`` in order from ``state`` (default: the undeformed block).
+
+    Parameters
+    ----------
+    model : fe_contact.Model
+    commands : sequence of fe_contact.Command
+    state : fe_contact.State, optional
+        Start state; not modified (a branch point stays usable).
+    scenario : dict, optional
+        The scenario as run (``Scenario.to_dict()`` with these commands), kept in the summary.
+    observers : sequence
+        See the module docstring.
+    keep_states : bool
+        Keep every state in ``run.states``.
+
+    Raises
+    ------
+    InputError
+        A command is not a ``fe_contact.Command``.
+    """
+    commands = tuple(commands)
+    for i, c in enumerate(commands):
+        if not isinstance(c, Command):
+            raise InputError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
+    owns_start = state is None  # then every state is ours, and a refresh may free the previous tangent
+    start = initial_state(model) if state is None else state
+    run = Run(model=model, state=start, summary=RunSummary(scenario=scenario or {}),
+              states=[start] if keep_states else [])
+    hook = _hook(observers)
+    t0 = time.perf_counter()
+    try:
+        for i, command in enumerate(commands):
+            new_state, report = step(model, run.state, command, local_problem_hook=hook,
+                                     consume=owns_start or i > 0)
+            run.reports.append(report)
+            _record(run, new_state, report, keep_states)
+            run.summary.elapsed_s = time.perf_counter() - t0
+            for o in observers:
+                o.step(run, report)
+            if not report.converged:
+                break
+        else:
+            run.summary.status = RunStatus.COMPLETED
+        run.summary.elapsed_s = time.perf_counter() - t0
+        _call(observers, "finish", run)
+    finally:
+        _call(observers, "close", run)
+    return run
+
+
+def _record(run: Run, new_state: State, report: StepReport, keep_states: bool) -> None:
+    if report.converged:
+        run.state = new_state
+        run.summary.steps.append(StepSummary.from_report(report))
+        if keep_states:
+            run.states.append(new_state)
+    else:
+        run.summary.failure = Failure(report.step_index, report.status.value, report.message)
+        run.summary.status = RunStatus.FAILED

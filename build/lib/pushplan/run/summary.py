@@ -1,0 +1,159 @@
+"""Typed results of a run, built once from the ``fe_contact`` step reports and turned
+into dicts only at the file boundary (``summary.json``).
+
+``StepSummary``  the numbers of one converged step (SI units; angles in degrees in
+                 the file, radians here).
+``Failure``      the step that failed, its status and message.
+``RunStatus``    ``running`` / ``completed`` / ``failed``.
+``RunSummary``   the scenario as run, the step summaries, status, failure, elapsed time.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fe_contact import Command, NodeStatus, StepReport
+
+from ..config.commands import command_from_dict, command_to_dict
+
+
+class RunStatus(str, enum.Enum):
+    RUNNING = "running"
+    COMPLETED = "completed"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class StepSummary:
+    """Numbers of one converged load step (SI units, angles in rad)."""
+
+    step: int
+    command: Command
+    status: str
+    upper_centroid: tuple[float, float, float]
+    lower_centroid: tuple[float, float, float]
+    lower_yaw: float
+    twist: float
+    lag: tuple[float, float]
+    max_slip: float
+    pressure_max: float
+    pressure_min: float
+    normal_force: float
+    tangential_force: tuple[float, float]
+    upper_force: tuple[float, float, float]
+    equilibrium_error: float
+    n_stick: int
+    n_slip: int
+    n_separated: int
+    dissipation: float
+    newton_iterations: int
+    contact_iterations: int
+    newton_residual: float
+    contact_residual: float
+    min_det_f: float
+    wall_time_s: float
+
+    @property
+    def converged(self) -> bool:
+        return self.status == "converged"
+
+    @property
+    def lower_yaw_deg(self) -> float:
+        return math.degrees(self.lower_yaw)
+
+    @property
+    def twist_deg(self) -> float:
+        return math.degrees(self.twist)
+
+    @classmethod
+    def from_report(cls, report: StepReport) -> StepSummary:
+        in_contact = report.node_status != NodeStatus.SEPARATED
+        p = report.pressure[in_contact]
+        return cls(
+            step=report.step_index, command=report.command, status=report.status.value,
+            upper_centroid=_floats(report.upper_centroid), lower_centroid=_floats(report.lower_centroid),
+            lower_yaw=float(report.lower_yaw), twist=float(report.twist), lag=_floats(report.lag),
+            max_slip=float(report.slip.max()),
+            pressure_max=float(p.max()) if p.size else 0.0, pressure_min=float(p.min()) if p.size else 0.0,
+            normal_force=float(report.normal_force), tangential_force=_floats(report.tangential_force),
+            upper_force=_floats(report.upper_force), equilibrium_error=float(report.equilibrium_error),
+            n_stick=report.n_stick, n_slip=report.n_slip, n_separated=report.n_separated,
+            dissipation=float(report.dissipation), newton_iterations=report.newton_iterations,
+            contact_iterations=report.contact_iterations, newton_residual=float(report.newton_residual),
+            contact_residual=float(report.contact_residual), min_det_f=float(report.min_det_f),
+            wall_time_s=float(report.wall_time),
+        )
+
+    def to_dict(self) -> dict:
+        """The ``summary.json`` form (angles in degrees)."""
+        return {
+            "step": self.step, "command": command_to_dict(self.command), "converged": self.converged,
+            "status": self.status, "upper_centroid": list(self.upper_centroid),
+            "lower_centroid": list(self.lower_centroid), "lower_yaw_deg": self.lower_yaw_deg,
+            "twist_deg": self.twist_deg, "lag": list(self.lag), "max_slip": self.max_slip,
+            "pressure_max": self.pressure_max, "pressure_min": self.pressure_min,
+            "normal_force": self.normal_force, "tangential_force": list(self.tangential_force),
+            "upper_force": list(self.upper_force), "equilibrium_error": self.equilibrium_error,
+            "n_stick": self.n_stick, "n_slip": self.n_slip, "n_separated": self.n_separated,
+            "dissipation": self.dissipation, "newton_iterations": self.newton_iterations,
+            "contact_iterations": self.contact_iterations, "newton_residual": self.newton_residual,
+            "contact_residual": self.contact_residual, "min_det_f": self.min_det_f,
+            "wall_time_s": self.wall_time_s,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> StepSummary:
+        """Inverse of :meth:`to_dict` (a ``summary.json`` step written by this version)."""
+        values = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
+        tuples = ("upper_centroid", "lower_centroid", "lag", "tangential_force", "upper_force")
+        values.update({k: _floats(d[k]) for k in tuples})
+        values.update(command=command_from_dict(d["command"], "command"),
+                      lower_yaw=math.radians(d["lower_yaw_deg"]), twist=math.radians(d["twist_deg"]))
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class Failure:
+    """The step at which a run stopped and why."""
+
+    step: int
+    status: str
+    message: str
+
+    def to_dict(self) -> dict:
+        return {"step": self.step, "status": self.status, "message": self.message}
+
+
+@dataclass
+class RunSummary:
+    """What ``summary.json`` holds, as typed data."""
+
+    scenario: dict
+    steps: list[StepSummary] = field(default_factory=list)
+    status: RunStatus = RunStatus.RUNNING
+    failure: Failure | None = None
+    elapsed_s: float = 0.0
+
+    @property
+    def completed(self) -> bool:
+        return self.status is RunStatus.COMPLETED
+
+    def to_dict(self) -> dict:
+        return {"scenario": self.scenario, "elapsed_s": self.elapsed_s, "status": self.status.value,
+                "failure": None if self.failure is None else self.failure.to_dict(),
+                "steps": [s.to_dict() for s in self.steps]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RunSummary:
+        failure = d.get("failure")
+        return cls(scenario=d["scenario"], steps=[StepSummary.from_dict(s) for s in d["steps"]],
+                   status=RunStatus(d["status"]), failure=None if failure is None else Failure(**failure),
+                   elapsed_s=float(d["elapsed_s"]))
+
+
+def _floats(a) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.asarray(a, float).ravel())

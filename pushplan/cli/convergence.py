@@ -1,0 +1,66 @@
+"""``pushplan convergence SCENARIO --levels N --out DIR``: a mesh-convergence study
+with Richardson extrapolation and the grid convergence index."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from ..errors import EXIT_SOLVER_FAILURE, InputError
+
+
+def _check(args, scenario) -> None:
+    from ..config.scenario import MAX_ELEMENTS
+    from ..studies.convergence import level_elements
+
+    if args.levels < 3:
+        raise InputError(f"--levels must be >= 3 (three meshes give an order), got {args.levels}")
+    if not (math.isfinite(args.ratio) and args.ratio > 1.0):
+        raise InputError(f"--ratio must be > 1, got {args.ratio}")
+    finest = level_elements(scenario.elements, args.ratio, args.levels - 1)
+    if math.prod(finest) > MAX_ELEMENTS:
+        raise InputError(f"--levels {args.levels} --ratio {args.ratio}: the finest mesh {list(finest)} has more "
+                         f"than {MAX_ELEMENTS} elements")
+    if not scenario.commands:
+        raise InputError(f"nothing to simulate: no load steps in {args.scenario}")
+
+
+def _print(result) -> None:
+    print(f"{'quantity':<20} " + " ".join(f"{'x'.join(map(str, lv.elements)):>14}" for lv in result.levels)
+          + f" {'extrapolated':>14} {'order':>6} {'GCI':>8}")
+    for name, ext in result.extrapolated.items():
+        values = [lv.values[name] if lv.values else math.nan for lv in result.levels]
+        tail = (f"{ext.value:>14.6g} {ext.order:>6.2f} {100 * ext.gci:>7.3f}%"
+                if ext.order is not None and ext.gci is not None else f"  {ext.note}")
+        print(f"{name:<20} " + " ".join(f"{v:>14.6g}" for v in values) + " " + tail)
+
+
+def cmd_convergence(args) -> int:
+    from ..config import load_scenario
+    from ..outputs import prepare_output_dir
+    from ..studies.convergence import study, write
+
+    scenario = load_scenario(args.scenario)
+    _check(args, scenario)
+    out = prepare_output_dir(args.out)
+    log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    result = study(scenario, args.levels, args.ratio, log=log)
+    paths = write(result, out)
+    _print(result)
+    print("wrote " + ", ".join(str(p) for p in paths))
+    if not result.completed:
+        failed = [lv.elements for lv in result.levels if lv.status != "completed"]
+        print(f"pushplan: solver failure on the mesh(es) {failed}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("convergence", help="mesh-convergence study: observed order, Richardson "
+                              "extrapolation and GCI of the scenario's results")
+    p.add_argument("scenario", help="scenario TOML file; its [block] elements are the coarsest mesh")
+    p.add_argument("--levels", type=int, required=True, help="number of meshes (>= 3)")
+    p.add_argument("--ratio", type=float, default=2.0, help="refinement ratio between levels (default 2)")
+    p.add_argument("--out", required=True, help="output folder (convergence.json, convergence.png)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_convergence)
