@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from _common import write_results
-from pushplan.planning.planner import plan, plan_document
+from pushplan.planning import plan, plan_document
 from pushplan.config import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"

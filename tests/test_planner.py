@@ -16,9 +16,12 @@ import pytest
 
 from fe_contact import Command, initial_state, run
 from pushplan.cli import main
-from pushplan.planning.planner import ReducedPlanner, naive_commands, parse_plan, plan
-from pushplan.planning.reduced_model import PushParameters, calibrate, simulate_reduced, steady_lag
 from pushplan.config import ScenarioError, parse_scenario
+from pushplan.config.plan import parse_plan
+from pushplan.planning import plan
+from pushplan.planning.nlp import ReducedPlanner
+from pushplan.planning.reduced_model import PushParameters, calibrate, simulate_reduced, steady_lag
+from pushplan.planning.target import naive_commands
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 PLANNING_SCENARIOS = ("plan_steel_case3", "plan_rubber", "plan_rotated_axes", "plan_yaw")

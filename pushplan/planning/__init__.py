@@ -1,1 +1,23 @@
-"""planning"""
+"""Planning pushes: a reduced push model calibrated from FE rollouts, the CasADi
+NLP on it, and the correction loop that verifies the plan in the FE model.
+
+``reduced_model``  the block as one elastic-plastic contact spring; calibration
+``nlp``            the planning NLP on the reduced model (CasADi ``Opti`` + ipopt)
+``rollouts``       FE rollouts from the pressed state through :func:`pushplan.run.drive`
+``target``         the naive baseline, pose errors, tolerance test
+``planner``        :func:`plan`, the correction loop
+``result``         :class:`PlanResult`, typed
+``document``       ``plan.json`` and ``recording.rrd``
+
+Imports nothing from ``mujoco``, ``studies`` or ``cli``; the ``[plan]`` table is
+:mod:`pushplan.config.plan`.
+"""
+
+from ..config.plan import PlanSpec, parse_plan
+from .document import plan_commands_json, plan_document, write_recording
+from .planner import plan
+from .result import Iteration, PlanResult
+from .rollouts import PlanningError, Rollout
+
+__all__ = ["Iteration", "PlanResult", "PlanSpec", "PlanningError", "Rollout", "parse_plan", "plan",
+           "plan_commands_json", "plan_document", "write_recording"]

@@ -33,15 +33,11 @@ import numpy as np
 
 from fe_contact import StepReport
 
+from ..config.validate import number
+from ..errors import InputError
+
 PROJECTION_TOL = 1e-13
 """Relative tolerance of the scalar Newton solve of the ellipsoid projection."""
-
-
-def _positive(name: str, value) -> float:
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -73,17 +69,14 @@ class PushParameters:
     max_torque: float | None = None
 
     def __post_init__(self):
-        for name in ("mu_x", "mu_y", "normal_force", "compliance"):
-            object.__setattr__(self, name, _positive(name, getattr(self, name)))
-        a = float(self.angle)
-        if not math.isfinite(a):
-            raise ValueError(f"angle must be finite, got {self.angle!r}")
-        object.__setattr__(self, "angle", a)
         if (self.torsion_compliance is None) != (self.max_torque is None):
-            raise ValueError("torsion_compliance and max_torque go together (both set or both None)")
+            raise InputError("torsion_compliance and max_torque go together (both set or both None)")
+        positive = ("mu_x", "mu_y", "normal_force", "compliance")
         if self.torsion_compliance is not None:
-            for name in ("torsion_compliance", "max_torque"):
-                object.__setattr__(self, name, _positive(name, getattr(self, name)))
+            positive += ("torsion_compliance", "max_torque")
+        for name in positive:
+            object.__setattr__(self, name, number(name, getattr(self, name), positive=True))
+        object.__setattr__(self, "angle", number("angle", self.angle))
 
     @property
     def rotation(self) -> bool:

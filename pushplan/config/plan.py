@@ -1,0 +1,170 @@
+"""The ``[plan]`` table of a planning scenario (``pushplan plan``) and its press.
+
+The scenario's ``[[load]]`` entries are the press (``dz`` only, net compression),
+applied before the planned commands; the ``[plan]`` table reads (SI units)::
+
+    [plan]
+    x = 0.9e-3                 # target lower-face centroid displacement, m
+    y = 0.9e-3
+    yaw_deg = 5.0              # optional target lower-face yaw (enables dtheta commands)
+    steps = 4                  # K planned commands
+    max_step = 0.4e-3          # bound on each command's in-plane length, m
+    max_dtheta_deg = 2.0       # bound on each command's rotation (only with yaw_deg)
+    tolerance = 3e-6           # final position tolerance, m (default 0.25 % of travel)
+    yaw_tolerance_deg = 0.1    # final yaw tolerance (default 0.1)
+    effort_weight = 1e-3       # weight of sum |u_k / bound|^2 against (error / tolerance)^2
+    planning_elements = [6, 6, 2]
+    planning_quadrature = 2
+    max_rollouts = 6           # FE rollouts per mesh in the correction loop
+
+:func:`parse_plan` gives a :class:`PlanSpec`; ``parse_plan`` of a scenario whose
+``[plan]`` is ``spec.to_table()`` gives ``spec`` back.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fe_contact import Command
+
+from ..errors import InputError
+from .commands import degrees_exact
+from .scenario import Scenario
+from .validate import Table, count
+
+PLAN_KEYS = frozenset({
+    "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
+    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts",
+})
+REQUIRED_KEYS = frozenset({"x", "y", "steps", "max_step"})
+DEFAULT_TOLERANCE_REL = 0.0025
+"""Default position tolerance as a fraction of the travel distance."""
+DEFAULT_YAW_TOLERANCE_DEG = 0.1
+DEFAULT_EFFORT_WEIGHT = 1e-3
+DEFAULT_PLANNING_ELEMENTS = (6, 6, 2)
+DEFAULT_PLANNING_QUADRATURE = 2
+DEFAULT_MAX_ROLLOUTS = 6
+
+
+@dataclass(frozen=True)
+class PlanSpec:
+    """A validated ``[plan]`` table (SI units, radians).
+
+    ``target`` is the lower-face pose ``(x, y, yaw)`` relative to the rest pose;
+    ``yaw`` is 0 and ignored when ``yaw_targeted`` is false (``max_dtheta`` too).
+    """
+
+    target: tuple[float, float, float]
+    yaw_targeted: bool
+    steps: int
+    max_step: float
+    max_dtheta: float
+    tolerance: float
+    yaw_tolerance: float
+    effort_weight: float
+    planning_elements: tuple[int, int, int]
+    planning_quadrature: int
+    max_rollouts: int
+
+    @property
+    def travel(self) -> float:
+        """Distance from the rest pose to the target position, m."""
+        return math.hypot(self.target[0], self.target[1])
+
+    @property
+    def reachable(self) -> bool:
+        """Whether the target is within K times the step bounds."""
+        ok = self.travel <= self.steps * self.max_step
+        if self.yaw_targeted:
+            ok = ok and abs(self.target[2]) <= self.steps * self.max_dtheta
+        return ok
+
+    def to_dict(self) -> dict:
+        """The ``plan.json`` form: every setting (angles in degrees, None where unused) and the travel."""
+        return {
+            "x": self.target[0], "y": self.target[1],
+            "yaw_deg": math.degrees(self.target[2]) if self.yaw_targeted else None,
+            "steps": self.steps, "max_step": self.max_step,
+            "max_dtheta_deg": math.degrees(self.max_dtheta) if self.yaw_targeted else None,
+            "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
+            "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
+            "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
+            "travel": self.travel,
+        }
+
+    def to_table(self) -> dict:
+        """The ``[plan]`` table that :func:`parse_plan` reads back as this spec (defaults written out)."""
+        table = {"x": self.target[0], "y": self.target[1], "steps": self.steps, "max_step": self.max_step,
+                 "tolerance": self.tolerance, "yaw_tolerance_deg": degrees_exact(self.yaw_tolerance),
+                 "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
+                 "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts}
+        if self.yaw_targeted:
+            table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
+        return table
+
+
+def press_commands(scenario: Scenario) -> tuple[Command, ...]:
+    """The scenario's ``[[load]]`` entries, checked to be a press (``dz`` only, net compression).
+
+    Raises
+    ------
+    InputError
+    """
+    cmds = scenario.commands
+    if not cmds:
+        raise InputError("a planning scenario needs [[load]] entries pressing the block (dz < 0)")
+    for i, c in enumerate(cmds):
+        if c.dx or c.dy or c.dtheta:
+            raise InputError(f"load[{i}] moves the upper face in the plane; the [[load]] entries of a "
+                             "planning scenario are the press (dz only)")
+    if sum(c.dz for c in cmds) >= 0:
+        raise InputError("the [[load]] entries must press the block (total dz < 0)")
+    return cmds
+
+
+def parse_plan(scenario: Scenario) -> PlanSpec:
+    """Validate the scenario's ``[plan]`` table and its press.
+
+    Raises
+    ------
+    InputError
+        Missing table, unknown key or bad value (named), a ``[[load]]`` that is not
+        a press (``dz`` only, net compression), or friction missing in a direction.
+    """
+    if "plan" not in scenario.extra:
+        raise InputError(f"scenario {scenario.name!r} has no [plan] table")
+    t = Table(scenario.extra["plan"], "plan", PLAN_KEYS, required=REQUIRED_KEYS)
+    press_commands(scenario)
+    if scenario.mu_x <= 0 or scenario.mu_y <= 0:
+        raise InputError(f"planning needs friction in both directions, got mu_x = {scenario.mu_x}, "
+                         f"mu_y = {scenario.mu_y}")
+    x, y = t.number("x"), t.number("y")
+    yaw_targeted = "yaw_deg" in t
+    yaw = math.radians(t.number("yaw_deg", lo=-180.0, hi=180.0)) if yaw_targeted else 0.0
+    steps = t.integer("steps", minimum=1)
+    max_step = t.number("max_step", positive=True)
+    if yaw_targeted:
+        if "max_dtheta_deg" not in t:
+            raise InputError("missing key plan.max_dtheta_deg (needed with plan.yaw_deg)")
+        max_dtheta = math.radians(t.number("max_dtheta_deg", positive=True))
+    elif "max_dtheta_deg" in t:
+        raise InputError("plan.max_dtheta_deg is only used with plan.yaw_deg (rotation commands)")
+    else:
+        max_dtheta = 0.0
+    travel = math.hypot(x, y)
+    if "tolerance" in t:
+        tolerance = t.number("tolerance", positive=True)
+    elif travel > 0:
+        tolerance = DEFAULT_TOLERANCE_REL * travel
+    else:
+        raise InputError("plan.tolerance is required when the target position is the start (x = y = 0)")
+    return PlanSpec(
+        target=(x, y, yaw), yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
+        tolerance=tolerance,
+        yaw_tolerance=math.radians(t.number("yaw_tolerance_deg", DEFAULT_YAW_TOLERANCE_DEG, positive=True)),
+        effort_weight=t.number("effort_weight", DEFAULT_EFFORT_WEIGHT, nonneg=True),
+        planning_elements=t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS)),
+        planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=1, maximum=3),
+        max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1),
+    )

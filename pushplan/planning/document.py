@@ -1,0 +1,106 @@
+"""A plan at the file boundary: the ``plan.json`` document, its re-executable command
+list and the ``recording.rrd`` of the verified rollout."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fe_contact import Model
+
+from ..config.commands import commands_to_list, planar_commands
+from ..config.plan import PlanSpec
+from .result import PlanResult
+from .target import pose_error
+
+
+def _poses_json(poses: np.ndarray) -> list[list[float]]:
+    """(n, 3) poses as ``[x, y, yaw_deg]`` rows."""
+    p = np.asarray(poses, float)
+    return [[float(r[0]), float(r[1]), math.degrees(float(r[2]))] for r in p]
+
+
+def _error_json(pose, spec: PlanSpec) -> dict:
+    pos, yaw = pose_error(pose, spec)
+    return {"position": pos, "position_rel_travel": pos / spec.travel if spec.travel > 0 else None,
+            "yaw_deg": math.degrees(yaw) if spec.yaw_targeted else None}
+
+
+def _commands_json(commands: np.ndarray) -> list[dict]:
+    """(K, 3) planned commands ``(dx, dy, dtheta)`` in the command-file format."""
+    return commands_to_list(planar_commands(commands))
+
+
+def plan_commands_json(result: PlanResult) -> list[dict]:
+    """The re-executable command list (press, then planned commands)."""
+    return commands_to_list(s.command for s in result.press_steps) + _commands_json(result.commands)
+
+
+def plan_document(result: PlanResult) -> dict:
+    """The ``plan.json`` content.
+
+    ``commands`` is the full re-executable sequence (press, then the K planned
+    commands) in the :mod:`pushplan.config.commands` format; poses are lists of
+    ``[x (m), y (m), yaw (deg)]`` of the lower face, row 0 after the press, row k
+    after planned command k (simulate step ``press_steps + k``).  ``solver.fe_rollouts``
+    counts every rollout per mesh: calibration, correction and the naive baseline.
+    """
+    spec, sol = result.spec, result.solution
+    return {
+        "scenario": result.scenario.to_dict(),
+        "plan": spec.to_dict(),
+        "status": result.status,
+        "message": result.message,
+        "commands": plan_commands_json(result),
+        "press_steps": len(result.press_steps),
+        "planned_commands": _commands_json(result.commands),
+        "poses": {
+            "predicted": _poses_json(sol.lower),
+            "predicted_upper": _poses_json(sol.upper),
+            "planning_fe": _poses_json(result.planning.lower) if result.planning is not None else None,
+            "verified": _poses_json(result.verified.lower),
+            "verified_upper": _poses_json(result.verified.upper),
+        },
+        "modifier": {"x": float(result.modifier[0]), "y": float(result.modifier[1]),
+                     "yaw_deg": math.degrees(float(result.modifier[2]))},
+        "final_error": _error_json(result.verified.lower[-1], spec),
+        "naive": {
+            "commands": _commands_json(result.naive.commands),
+            "verified_poses": _poses_json(result.naive.lower),
+            "final_error": _error_json(result.naive.lower[-1], spec),
+        },
+        "reduced_model": result.params.to_dict(),
+        "meshes": {
+            "planning": {"elements": list(spec.planning_elements), "quadrature": spec.planning_quadrature},
+            "verification": {"elements": list(result.scenario.elements), "quadrature": result.scenario.quadrature},
+        },
+        "solver": {
+            "nlp": "casadi Opti + ipopt",
+            "nlp_solves": sum(1 for it in result.iterations if it.resolved),
+            "nlp_success": sol.success,
+            "nlp_iterations": sol.iterations,
+            "fe_rollouts": result.rollouts,
+            "wall_time_s": result.timings,
+            "iterations": [it.to_dict() for it in result.iterations],
+        },
+        "release": "not modelled: poses are under load, upper face held after the last command",
+    }
+
+
+def write_recording(result: PlanResult, path, verification_model: Model) -> None:
+    """``recording.rrd``: the verified FE rollout (press and plan) and the plan overlays."""
+    from ..outputs.recording import Recorder
+
+    spec = result.spec
+    resolved = result.scenario.to_dict()
+    resolved["load"] = plan_commands_json(result)
+    reports = (*result.press_reports, *result.verified.reports)
+    steps = (*result.press_steps, *result.verified.steps)  # built once, by the driver
+    with Recorder(path, f"plan_{result.scenario.name}", verification_model.mesh, scenario=resolved) as rec:
+        for rep, summary in zip(reports, steps, strict=True):
+            rec.log_step(rep, summary)
+        dims = 3 if spec.yaw_targeted else 2
+        rec.log_plan(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
+                     verified=result.verified.lower[:, :dims], naive=result.naive.lower[:, :dims],
+                     cost=[it.objective for it in result.iterations])

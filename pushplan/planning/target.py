@@ -1,0 +1,46 @@
+"""The planning target measured: the naive baseline push, the error of a final
+lower-face pose against the target and the tolerance test."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..config.plan import PlanSpec
+
+
+def wrap_angle(angle):
+    """``angle`` (rad, scalar or array) wrapped to ``[-pi, pi)``."""
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def naive_commands(spec: PlanSpec) -> np.ndarray:
+    """The baseline: the upper face moved straight by the target pose in K equal steps, (K, 3)."""
+    t = np.array(spec.target) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
+    return np.tile(t / spec.steps, (spec.steps, 1))
+
+
+def pose_error(pose, spec: PlanSpec) -> tuple[float, float]:
+    """Position error (m) and absolute yaw error (rad, 0 without a yaw target) of a
+    final lower-face pose ``(x, y, yaw)``."""
+    e = np.asarray(pose, float)[:2] - spec.target[:2]
+    yaw = abs(float(wrap_angle(pose[2] - spec.target[2]))) if spec.yaw_targeted else 0.0
+    return float(np.hypot(*e)), yaw
+
+
+def within_tolerance(pose, spec: PlanSpec) -> bool:
+    """Whether both errors of :func:`pose_error` are within the spec's tolerances."""
+    pos, yaw = pose_error(pose, spec)
+    return pos <= spec.tolerance and yaw <= spec.yaw_tolerance
+
+
+def reach_message(spec: PlanSpec) -> str:
+    """Why the target is beyond the step bounds, or ``""`` when it is reachable."""
+    if spec.reachable:
+        return ""
+    return (f"target {spec.travel * 1e3:.4g} mm"
+            + (f" / {math.degrees(spec.target[2]):.4g} deg" if spec.yaw_targeted else "")
+            + f" is beyond reach of {spec.steps} steps of {spec.max_step * 1e3:.4g} mm"
+            + (f" / {math.degrees(spec.max_dtheta):.4g} deg" if spec.yaw_targeted else "")
+            + "; planning the closest reachable pose")
