@@ -22,7 +22,7 @@ import pytest
 
 from fe_contact import Command, initial_state, step
 from pushplan.cli import main
-from pushplan.mujoco.bridge import (
+from pushplan.mujoco import (
     CoSimulation,
     compare,
     export_plan,
@@ -198,7 +198,7 @@ def test_offset_rotating_gripper_keyframes_and_coupler_recover_the_commands(tmp_
 
 def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     scene, settings = open_scene(SCENE_TOML)
-    result = compare(scene, settings=settings, fe_model=scene.scenario.model(**COARSE), out_dir=tmp_path)
+    result = compare(scene, settings=settings, fe_model=scene.scenario.model(**COARSE), out_dir=tmp_path).to_dict()
     steps = {name: res["steps"][1:] for name, res in result["models"].items()}  # the four pushes
     fe_twist = np.array([r["twist_deg"] for r in steps["fe"]])
     assert np.all(fe_twist > FE_TWIST_MIN_DEG)
@@ -218,7 +218,7 @@ def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     # isotropy, not symmetry: off the block's diagonal the flex still follows the push
     off_axis = (0.32e-3 * math.cos(math.radians(30)), 0.32e-3 * math.sin(math.radians(30)), 0.0)
     flex = compare(scene, [Command(*PRESS), Command(*off_axis), Command(*off_axis)], settings,
-                   models=("flex_isotropic",))["models"]["flex_isotropic"]["steps"]
+                   models=("flex_isotropic",)).to_dict()["models"]["flex_isotropic"]["steps"]
     assert all(abs(r["deviation_deg"]) < FLEX_DEVIATION_DEG for r in flex[1:])
 
 
@@ -252,3 +252,32 @@ def test_mujoco_stays_out_of_fe_contact_and_the_cli_parser():
     assert out.strip() == "False"
     imports = re.compile(r"^\s*(import|from)\s+mujoco\b", re.MULTILINE)
     assert not any(imports.search(p.read_text()) for p in (ROOT / "fe_contact").glob("*.py"))
+
+
+# ----------------------------------------------------------------------- settings
+
+
+def test_bridge_settings_round_trip_and_named_errors():
+    from pushplan.config.mujoco import BridgeSettings, bridge_settings
+    from pushplan.config.scenario import load_scenario
+    from pushplan.errors import InputError
+
+    table = load_scenario(SCENE_TOML).extra["mujoco"]
+    settings = bridge_settings(table)
+    assert settings.flex_points == (3, 3, 2) and settings.force_factor == 1.2
+    assert bridge_settings(settings.to_dict()) == settings
+    custom = BridgeSettings(scene="s.xml", gripper="hand", control_period=0.01, settle_time=0.0,
+                            flex_points=(4, 3, 2), flex_mu=0.2, force_factor=1.5)
+    assert bridge_settings(custom.to_dict()) == custom
+    assert bridge_settings({}) == BridgeSettings()
+    for key, value, message in [
+        ("force_factor", 1.0, "mujoco.force_factor must be > 1.0, got 1.0"),
+        ("control_period", -1, "mujoco.control_period must be > 0, got -1"),
+        ("settle_time", -0.1, "mujoco.settle_time must be >= 0"),
+        ("flex_points", [3, 1, 2], r"mujoco.flex_points\[1\] must be >= 2, got 1"),
+        ("flex_mu", "high", "mujoco.flex_mu must be a number"),
+        ("gripper", 3, "mujoco.gripper must be a string"),
+        ("speed", 1.0, "unknown key mujoco.speed"),
+    ]:
+        with pytest.raises(InputError, match=message):
+            bridge_settings({**table, key: value})

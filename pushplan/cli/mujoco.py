@@ -1,3 +1,156 @@
-"""Transitional: registers the commands of pushplan.mujoco.bridge."""
+"""``pushplan mujoco {import,compare,cosim,export}``: the MuJoCo bridge commands.
 
-from ..mujoco.bridge import register  # noqa: F401
+Top-level imports are argparse-level only; ``mujoco``, numpy and the bridge are
+imported inside the command functions (``pushplan --help`` stays cheap).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import EXIT_SOLVER_FAILURE, InputError
+
+
+def _scene(args):
+    """(MjcfScene, BridgeSettings) of ``args.scene`` with the command-line overrides."""
+    from ..config.mujoco import bridge_settings
+    from ..mujoco.scene import open_scene
+
+    scene, settings = open_scene(args.scene, block=args.block, floor=args.floor)
+    overrides = {k: v for k, v in (("gripper", getattr(args, "gripper", None)),
+                                   ("control_period", getattr(args, "control_period", None))) if v is not None}
+    if overrides:
+        settings = bridge_settings({**settings.to_dict(), **overrides})
+    return scene, settings
+
+
+def _commands(args, scene) -> tuple:
+    if getattr(args, "commands", None):
+        from ..config.commands import load_commands
+
+        return tuple(load_commands(args.commands))
+    if not scene.scenario.commands:
+        raise InputError("no commands: give --commands plan.json or a scenario TOML with [[load]] steps")
+    return scene.scenario.commands
+
+
+def _fe_model(args, scene):
+    return scene.scenario.model(elements=tuple(args.elements) if args.elements else None,
+                                quadrature=args.quadrature)
+
+
+def cmd_import(args) -> int:
+    scene, _ = _scene(args)
+    s = scene.scenario
+    print(f"block {scene.block_body!r} ({scene.block_geom}): size {[round(v * 1e3, 6) for v in s.size]} mm, "
+          f"mass {scene.block_mass * 1e3:.4g} g")
+    print(f"friction ({scene.pair or 'dynamic contact'}): mu_x = {s.mu_x}, mu_y = {s.mu_y}, angle = {s.angle_deg} deg")
+    print(f"material: E = {s.young:.4g} Pa, nu = {s.poisson}")
+    for k, v in scene.from_mjcf.items():
+        print(f"  from MJCF: {k} <- {v}")
+    for k, v in scene.not_from_mjcf.items():
+        print(f"  not from MJCF: {k} <- {v}")
+    for note in scene.notes:
+        print(f"  note: {note}")
+    return 0
+
+
+def cmd_compare(args) -> int:
+    import math
+
+    from ..mujoco.compare import MODEL_NOTES, compare
+    from ..outputs.atomic import prepare_output_dir
+
+    scene, settings = _scene(args)
+    commands = _commands(args, scene)
+    models = [name for name in MODEL_NOTES if not (args.no_flex and name == "flex_isotropic")]
+    fe_model = _fe_model(args, scene)
+    out = prepare_output_dir(args.out)
+    result = compare(scene, commands, settings, fe_model, models, out)
+    print(f"{'model':>15} {'lower x,y (mm)':>20} {'twist':>9} {'deviation':>10} {'wall':>7}")
+    for name, run in result.models.items():
+        last = run.steps[-1]
+        lo = last.lower * 1e3
+        print(f"{name:>15} {lo[0]:>9.4f},{lo[1]:>9.4f} {math.degrees(last.twist):>8.3f}° "
+              f"{math.degrees(last.deviation):>9.3f}° {run.wall_s:>6.2f}s")
+    print(f"wrote {out / 'comparison.json'} and {out / 'comparison.png'}")
+    return 0
+
+
+def cmd_cosim(args) -> int:
+    import math
+
+    import numpy as np
+
+    from ..mujoco.cosim import run_cosimulation
+    from ..outputs.atomic import atomic_write_json, prepare_output_dir
+    from ..run.summary import RunStatus
+
+    scene, settings = _scene(args)
+    commands = _commands(args, scene)
+    fe_model = _fe_model(args, scene)
+    out = prepare_output_dir(args.out)
+    record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
+                              rrd_path=None if args.no_rerun else out / "cosim.rrd")
+    atomic_write_json(out / "cosim.json", record.to_dict())
+    for p in record.periods:
+        rep = p.report
+        lo = np.asarray(rep.lower_centroid) * 1e3
+        print(f"period {p.period:>3} t = {p.time:.3f} s  lower {lo[0]:8.4f},{lo[1]:8.4f} mm  "
+              f"twist {math.degrees(rep.twist):7.3f}°  FE {rep.wall_time * 1e3:6.1f} ms")
+    print(f"co-simulation rate: {record.rate_periods_per_s:.2f} control periods/s "
+          f"({len(record.periods)} periods, {record.steps_per_period} MuJoCo steps each, "
+          f"{record.wall_s:.2f} s)")
+    print(f"wrote {out / 'cosim.json'}" + ("" if args.no_rerun else f" and {out / 'cosim.rrd'}"))
+    if record.status is not RunStatus.COMPLETED:
+        print(f"pushplan: solver failure at period {len(record.periods)}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    return 0
+
+
+def cmd_export(args) -> int:
+    from ..mujoco.trajectory import export_plan
+
+    scene, settings = _scene(args)
+    commands = _commands(args, scene)
+    path = export_plan(args.out, scene, commands, settings.gripper, settings.control_period)
+    print(f"wrote {path} ({len(commands) + 1} gripper knots, {settings.control_period} s apart)")
+    return 0
+
+
+def _common(q, commands=True, fe=True) -> None:
+    q.add_argument("scene", help="scenario TOML with a [mujoco] table, or an MJCF .xml")
+    q.add_argument("--block", help="block body or box geom (default from [mujoco] or 'block')")
+    q.add_argument("--floor", help="floor plane geom (default from [mujoco] or 'floor')")
+    if commands:
+        q.add_argument("--gripper", help="gripper mocap body (default from [mujoco] or 'gripper')")
+        q.add_argument("--commands", help="plan.json whose commands replace the scenario's [[load]]")
+        q.add_argument("--control-period", type=float, help="s of MuJoCo time per command")
+    if fe:
+        q.add_argument("--elements", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="FE mesh override")
+        q.add_argument("--quadrature", type=int, choices=(2, 3), help="Gauss points per direction override")
+
+
+def register(subparsers) -> None:
+    """Add ``pushplan mujoco {import,compare,cosim,export}``."""
+    p = subparsers.add_parser("mujoco", help="MuJoCo bridge: MJCF import, rigid/flex comparison, "
+                                             "co-simulation, plan export")
+    sub = p.add_subparsers(dest="mujoco_command", metavar="ACTION")
+    sub.required = True
+    q = sub.add_parser("import", help="show what the MJCF scene gives the FE model")
+    _common(q, commands=False, fe=False)
+    q.set_defaults(func=cmd_import)
+    q = sub.add_parser("compare", help="FE vs MuJoCo rigid (weld, force) vs flex (isotropic) on the same commands")
+    _common(q)
+    q.add_argument("--out", required=True, help="output folder (comparison.json, comparison.png)")
+    q.add_argument("--no-flex", action="store_true", help="skip the flex model")
+    q.set_defaults(func=cmd_compare)
+    q = sub.add_parser("cosim", help="headless co-simulation: gripper follows the commands, FE block in MuJoCo")
+    _common(q)
+    q.add_argument("--out", required=True, help="output folder (cosim.json, cosim.rrd)")
+    q.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
+    q.set_defaults(func=cmd_cosim)
+    q = sub.add_parser("export", help="write a plan as MuJoCo gripper keyframes (.xml) or times and poses (.npz)")
+    _common(q, fe=False)
+    q.add_argument("--out", required=True, help="output file, .xml (MJCF <keyframe>) or .npz")
+    q.set_defaults(func=cmd_export)

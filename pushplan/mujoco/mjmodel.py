@@ -1,0 +1,96 @@
+"""Access to compiled MuJoCo models: the lazy ``mujoco`` import, loading an MJCF file,
+object names and ids (unnamed objects as ``"#id"``) and the world frame of a body or site.
+
+``mujoco`` is imported inside functions only, so importing this package stays cheap.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def mujoco_module():
+    """The ``mujoco`` module, imported on first use."""
+    import mujoco
+
+    return mujoco
+
+
+def object_name(m, objtype, i: int) -> str:
+    """Name of object ``i`` of type ``objtype``, or ``"#i"`` when unnamed."""
+    name = mujoco_module().mj_id2name(m, objtype, i)
+    return name if name else f"#{i}"
+
+
+def find_object(m, objtype, name: str, what: str) -> int:
+    """Id of the object called ``name`` (or ``"#id"``, as :func:`object_name` writes it).
+
+    Raises
+    ------
+    InputError
+        No such object; ``what`` names its role in the message.
+    """
+    if name.startswith("#") and name[1:].isdigit():
+        return int(name[1:])
+    i = mujoco_module().mj_name2id(m, objtype, name)
+    if i < 0:
+        raise InputError(f"{what} {name!r} not found in the MJCF model")
+    return i
+
+
+def load_model(source) -> tuple[Any, str]:
+    """(``MjModel``, path) of an MJCF file, or (``source``, "") for a compiled model.
+
+    Raises
+    ------
+    InputError
+        Missing file or MuJoCo rejects it (its message quoted).
+    """
+    mj = mujoco_module()
+    if isinstance(source, mj.MjModel):
+        return source, ""
+    path = Path(source)
+    if not path.is_file():
+        raise InputError(f"MJCF file not found: {path}")
+    try:
+        return mj.MjModel.from_xml_path(str(path)), str(path)
+    except ValueError as exc:  # MuJoCo's compiler error: the file is bad input
+        raise InputError(f"cannot load MJCF {path}: {exc}") from None
+
+
+def frame_of(m, d, name: str) -> tuple[str, int, np.ndarray, np.ndarray]:
+    """(``"body"`` | ``"site"``, id, world position (3,) m, rotation (3, 3)) of a body or site.
+
+    Raises
+    ------
+    InputError
+        ``name`` is neither a body nor a site.
+    """
+    mj = mujoco_module()
+    bid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, name)
+    if bid >= 0:
+        return "body", bid, d.xpos[bid].copy(), d.xmat[bid].reshape(3, 3).copy()
+    sid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_SITE, name)
+    if sid >= 0:
+        return "site", sid, d.site_xpos[sid].copy(), d.site_xmat[sid].reshape(3, 3).copy()
+    raise InputError(f"gripper {name!r} is neither a body nor a site of the MJCF model")
+
+
+def mocap_index(m, name: str, what: str = "gripper") -> int:
+    """Index into ``MjData.mocap_pos`` of the mocap body ``name``.
+
+    Raises
+    ------
+    InputError
+        ``name`` is not a mocap body.
+    """
+    mj = mujoco_module()
+    bid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, name)
+    if bid < 0 or m.body_mocapid[bid] < 0:
+        raise InputError(f"{what} {name!r} must be a mocap body to follow a command list")
+    return int(m.body_mocapid[bid])
