@@ -1,6 +1,7 @@
 """Acceptance tests of the FE contact step (issue 3): analytic nonlinear solution,
 equilibrium, symmetry, associated slip rule, dissipation, separation, refinement."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -547,3 +548,44 @@ def test_solve_with_contact_equals_one_solve_with_the_contact_force_added(factor
     x0, x = np.linalg.solve(K_dense, b), np.linalg.solve(K_dense, rhs)
     np.testing.assert_allclose(contact.ravel(), x0[tangent.contact_index], rtol=0, atol=1e-12 * np.abs(x0).max())
     np.testing.assert_allclose(finish(f), x, rtol=0, atol=1e-12 * np.abs(x).max())
+
+
+@pytest.mark.parametrize("where", ["contact_problem", "update"])
+def test_a_linear_solve_that_breaks_down_is_a_status_not_an_exception(monkeypatch, where):
+    """NaN out of the solve with the tangent (forced here; a nearly singular
+    factor gives inf) ends the step with status not_finite and the state kept,
+    whether it reaches the contact problem ``q`` or only the displacement
+    update; neither leaks the ValueError of a non-finite ``q`` or ``U`` from
+    the layers below."""
+    import importlib
+
+    Tangent = importlib.import_module("fe_contact.tangent").Tangent
+    real = Tangent.solve_with_contact
+
+    def broken(self, rhs_free):
+        contact, finish = real(self, rhs_free)
+        if where == "contact_problem":
+            return contact * np.nan, finish
+        return contact, lambda force_world: finish(force_world) * np.nan
+
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+    monkeypatch.setattr(Tangent, "solve_with_contact", broken)
+    s2, rep = step(model, s1, push(45.0))
+    assert rep.status.value == "not_finite"
+    assert "iteration 0" in rep.message
+    assert s2 is s1
+    assert np.all(np.isfinite(rep.displacement))  # the last good iterate, for diagnosis
+
+
+@pytest.mark.parametrize("field", ["displacement", "reaction", "slip_path"])
+def test_a_state_that_is_not_finite_or_not_the_models_is_refused(field):
+    """Invalid input at the public boundary is a ValueError naming the field."""
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s0 = initial_state(model)
+    bad = np.array(getattr(s0, field))
+    bad.flat[0] = np.nan
+    with pytest.raises(ValueError, match=f"state.{field} must be finite"):
+        step(model, dataclasses.replace(s0, **{field: bad}), Command(dz=-0.1e-3))
+    with pytest.raises(ValueError, match=f"state.{field} has shape"):
+        step(model, dataclasses.replace(s0, **{field: bad[:-1]}), Command(dz=-0.1e-3))
