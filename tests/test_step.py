@@ -589,3 +589,22 @@ def test_a_state_that_is_not_finite_or_not_the_models_is_refused(field):
         step(model, dataclasses.replace(s0, **{field: bad}), Command(dz=-0.1e-3))
     with pytest.raises(ValueError, match=f"state.{field} has shape"):
         step(model, dataclasses.replace(s0, **{field: bad[:-1]}), Command(dz=-0.1e-3))
+
+
+def test_a_state_holds_its_tangent_through_a_handle_that_steps_share():
+    """A State's cache is a TangentCache handle: None gives an empty one, any
+    other object is refused; a converged step caches its tangent in the new
+    state's own handle and leaves the input state's alone unless consumed."""
+    from fe_contact import TangentCache
+
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s0 = initial_state(model)
+    assert isinstance(s0.tangent, TangentCache) and s0.tangent.value is None
+    assert dataclasses.replace(s0, tangent=None).tangent.value is None
+    with pytest.raises(ValueError, match="TangentCache"):
+        dataclasses.replace(s0, tangent=object())
+    s1, _ = step(model, s0, Command(dz=-0.1e-3))
+    s2, _ = step(model, s1, push(45.0))
+    s2b, _ = step(model, s1, push(30.0))
+    assert s1.tangent.value is not None and s2.tangent.value is not None
+    assert s1.tangent is not s2.tangent and s2.tangent is not s2b.tangent
