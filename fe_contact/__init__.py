@@ -26,6 +26,7 @@ from .model import (
     State,
     Status,
     StepReport,
+    TangentCache,
     build_model,
     initial_state,
 )
@@ -43,6 +44,7 @@ __all__ = [
     "State",
     "Status",
     "StepReport",
+    "TangentCache",
     "block_mesh",
     "build_model",
     "initial_state",

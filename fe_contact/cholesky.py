@@ -94,6 +94,25 @@ class SupernodalStructure:
         return int(self.starts[-1] - self.starts[-2])
 
 
+def _entries_by_part(indptr, indices, elim: np.ndarray, starts: np.ndarray):
+    """The entries ``(i, j)`` of ``K`` with both dofs free and ``j`` eliminated
+    no earlier than ``i``: the part of ``i`` assembles them into column ``i``
+    of its front, row ``j``.
+
+    Returns their positions in ``K.data``, the elimination positions of ``i``
+    (sorted) and of ``j``, and where each part's entries begin
+    (``len(starts)``,).
+    """
+    rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))
+    er, ec = elim[rows], elim[indices]
+    keep = (er >= 0) & (ec >= er)
+    pos = np.flatnonzero(keep)
+    er, ec = er[keep], ec[keep]
+    by_row = np.argsort(er, kind="stable")
+    pos, er, ec = pos[by_row], er[by_row], ec[by_row]
+    return pos, er, ec, np.searchsorted(er, starts)
+
+
 def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndarray) -> SupernodalStructure:
     """Symbolic multifrontal factorisation of ``K[free][:, free]``.
 
@@ -133,16 +152,7 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
     starts = np.zeros(len(parts) + 1, dtype=np.int64)
     np.cumsum([p.size for p in parts], out=starts[1:])
 
-    # entries (i, j) of K with both dofs free and j eliminated no earlier than i:
-    # the part of i assembles them into column i of its front, row j
-    rows = np.repeat(np.arange(n_dofs), np.diff(indptr))
-    er, ec = elim[rows], elim[indices]
-    keep = (er >= 0) & (ec >= er)
-    pos = np.flatnonzero(keep)
-    er, ec = er[keep], ec[keep]
-    by_row = np.argsort(er, kind="stable")
-    pos, er, ec = pos[by_row], er[by_row], ec[by_row]
-    bounds = np.searchsorted(er, starts)
+    pos, er, ec, bounds = _entries_by_part(indptr, indices, elim, starts)
 
     n_parts = len(parts)
     boundary, fronts, source, target = [], [], [], []

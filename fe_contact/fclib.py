@@ -226,7 +226,6 @@ def write_local_problem(
 
     D, mu_prime = _scaling(mu_x, mu_y)
     d = D.ravel()
-    zero = np.flatnonzero(d == 0.0)
     rows = np.repeat(np.arange(3 * nc), np.diff(Wc.indptr))
     Ws = sp.csr_array(((d[rows] * Wc.data) * d[Wc.indices], Wc.indices, Wc.indptr), shape=Wc.shape)
     scaled = bool(np.any(D != 1.0))
@@ -248,21 +247,29 @@ def write_local_problem(
             s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
             sol.create_dataset("r", data=s.ravel())
             sol.create_dataset("u", data=(D * u).ravel())
-        g = f.create_group(ANISOTROPY_GROUP)
-        g.attrs["format_version"] = FORMAT_VERSION
-        g.attrs["mapping"] = "W' = D W D, q' = D q, r = D s, u' = D u, D = diag(scaling[c]) per contact"
-        for name, a in (("mu_x", mu_x), ("mu_y", mu_y), ("angle", angle), ("scaling", D)):
-            g.create_dataset(name, data=a)
-        if zero.size:
-            g.create_dataset("degenerate_index", data=zero.astype(np.int64))
-            _write_sparse_matrix(g.create_group("W_degenerate_rows"), Wc[zero, :])
-            _write_sparse_matrix(g.create_group("W_degenerate_cols_T"), Wc.T.tocsr()[zero, :])
-            g.create_dataset("q_degenerate", data=q.ravel()[zero])
-            if r is not None:
-                g.create_dataset("r_degenerate", data=r.ravel()[zero])
-                g.create_dataset("u_degenerate", data=u.ravel()[zero])
+        _write_anisotropy(f.create_group(ANISOTROPY_GROUP), mu_x, mu_y, angle, D, Wc, q, r, u)
 
     _atomic_write(Path(path), write)
+
+
+def _write_anisotropy(g: h5py.Group, mu_x, mu_y, angle, D, Wc, q, r, u) -> None:
+    """The ``/pushplan_anisotropy`` group: coefficients, orthotropy angles,
+    scaling ``D`` (nc, 3), and the rows, columns and entries of ``W``, ``q``
+    (and ``r``, ``u``) at the components ``D`` zeroes (a zero coefficient),
+    which the scaled problem no longer holds."""
+    zero = np.flatnonzero(D.ravel() == 0.0)
+    g.attrs["format_version"] = FORMAT_VERSION
+    g.attrs["mapping"] = "W' = D W D, q' = D q, r = D s, u' = D u, D = diag(scaling[c]) per contact"
+    for name, a in (("mu_x", mu_x), ("mu_y", mu_y), ("angle", angle), ("scaling", D)):
+        g.create_dataset(name, data=a)
+    if zero.size:
+        g.create_dataset("degenerate_index", data=zero.astype(np.int64))
+        _write_sparse_matrix(g.create_group("W_degenerate_rows"), Wc[zero, :])
+        _write_sparse_matrix(g.create_group("W_degenerate_cols_T"), Wc.T.tocsr()[zero, :])
+        g.create_dataset("q_degenerate", data=q.ravel()[zero])
+        if r is not None:
+            g.create_dataset("r_degenerate", data=r.ravel()[zero])
+            g.create_dataset("u_degenerate", data=u.ravel()[zero])
 
 
 # --------------------------------------------------------------------------- helpers

@@ -18,20 +18,20 @@ Methods
 ``"newton"``
     Semismooth Newton on the Alart-Curnier equations of the equivalent isotropic
     problem ``FC(D W D, D q, mu = 1)``, ``r = D s``, ``D = diag(1, mu_x, mu_y)``,
-    globalised by a non-monotone Armijo line search on ``|F|^2 / 2``.
+    globalised by a non-monotone Armijo line search on ``|F|^2 / 2`` (the
+    equations and the linear algebra of a step: :mod:`fe_contact.alart_curnier`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
-from numba import njit
 
-from ._threads import dense_kernel
+from .alart_curnier import (alart_curnier, factorise_newton_matrix, gmres, jacobian_product, lu_step, newton_matrix,
+                            well_conditioned)
 from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
@@ -296,190 +296,18 @@ def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
     return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), "uzawa")
 
 
-def _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
-    """AC function ``F(s)`` and (if ``jacobian``) one element of its generalised
-    Jacobian, ``blockdiag(P) + blockdiag(Q) D W D``, as its 3x3 blocks ``P, Q``
-    (n, 3, 3) (:func:`_newton_matrix` forms it, :func:`_jacobian_product`
-    applies it).
-
-    Isotropic cone with coefficients ``mu`` (1 or 0) on the scaled variables
-    of the problem ``u_s = D W D s + q_s``, ``D = diag(d)`` (``D W D`` is never
-    formed: at 1e4 contacts it is another 7 GB matrix).  ``fixed`` marks
-    scaled components pinned to 0 (axes with zero friction).  The product
-    with ``W`` is BLAS; the per-contact rest is :func:`_ac_kernel`.
-    """
-    n = s.shape[0]
-    u = (d * (W @ (d * s.ravel()))).reshape(n, 3) + qs
-    size = n if jacobian else 0
-    P, Q = np.zeros((size, 3, 3)), np.zeros((size, 3, 3))
-    F = _ac_kernel(np.ascontiguousarray(s), u, mu, rho, fixed, P, Q)
-    return (F, P, Q) if jacobian else F
-
-
-@njit(cache=True)
-def _ac_kernel(s, u, mu, rho, fixed, P, Q):
-    """``F`` of :func:`_alart_curnier` for displacements ``u``, and its
-    Jacobian blocks into ``P``, ``Q`` (zeroed, shape (n, 3, 3)) unless they
-    have no rows.
-
-    Per contact, with ``p = s_n - rho u_n``, ``R = mu max(p, 0)``, ``z = s_t -
-    rho u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
-
-    * normal row, active (p > 0): ``rho W_n`` (P = 0, Q = rho e_n);
-      inactive: ``e_n`` (P = e_n, Q = 0);
-    * tangent rows, stick (|z| <= R, R > 0): ``rho W_t`` (P = 0, Q = rho [0 I]);
-      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)`` with
-      ``dR = mu (e_n - rho W_n)`` when active, else 0;
-    * components pinned to zero: ``F = s``, row ``e_i``.
-    """
-    n = s.shape[0]
-    F = np.empty((n, 3))
-    jac = P.shape[0] > 0
-    for c in range(n):
-        r = rho[c]
-        p = s[c, 0] - r * u[c, 0]
-        active = p > 0.0
-        R = mu[c] * p if active else 0.0
-        z1 = s[c, 1] - r * u[c, 1]
-        z2 = s[c, 2] - r * u[c, 2]
-        zn = math.sqrt(z1 * z1 + z2 * z2)
-        stick = zn <= R and R > 0.0
-        h1, h2 = (z1 / zn, z2 / zn) if zn > 0.0 else (0.0, 0.0)
-        F[c, 0] = r * u[c, 0] if active else s[c, 0]
-        if stick:
-            F[c, 1], F[c, 2] = r * u[c, 1], r * u[c, 2]
-        else:
-            F[c, 1], F[c, 2] = s[c, 1] - R * h1, s[c, 2] - R * h2
-        if jac:
-            if active:
-                Q[c, 0, 0] = r
-            else:
-                P[c, 0, 0] = 1.0
-            if stick:
-                Q[c, 1, 1] = r
-                Q[c, 2, 2] = r
-            else:
-                coef = R / zn if zn > 0.0 else 0.0
-                m_act = mu[c] if active else 0.0
-                h = (h1, h2)
-                for i in range(2):
-                    P[c, 1 + i, 0] = -m_act * h[i]
-                    Q[c, 1 + i, 0] = m_act * r * h[i]
-                    for j in range(2):
-                        proj = (1.0 if i == j else 0.0) - h[i] * h[j]
-                        P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
-                        Q[c, 1 + i, 1 + j] = coef * r * proj
-        for i in range(3):
-            if fixed[c, i]:
-                F[c, i] = s[c, i]
-                if jac:
-                    for j in range(3):
-                        P[c, i, j] = 1.0 if i == j else 0.0
-                        Q[c, i, j] = 0.0
-    return F
-
-
-def _newton_matrix(P, Q, W, d) -> np.ndarray:
-    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n)."""
-    n = P.shape[0]
-    m = 3 * n
-    J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, m)).reshape(m, m)
-    J *= d
-    blocks = J.reshape(n, 3, n, 3)
-    idx = np.arange(n)
-    blocks[idx, :, idx, :] += P
-    return J
-
-
-def _jacobian_product(P, Q, W, d, v) -> np.ndarray:
-    """``(blockdiag(P) + blockdiag(Q) D W D) v`` without forming the matrix (3n,)."""
-    n = P.shape[0]
-    Wv = (d * (W @ (d * v))).reshape(n, 3)
-    return (np.einsum("cij,cj->ci", P, v.reshape(n, 3)) + np.einsum("cij,cj->ci", Q, Wv)).ravel()
-
-
-def _gmres(apply_A, b, apply_M, rtol: float, max_iter: int) -> np.ndarray | None:
-    """``x`` with ``|A x - b| <= rtol |b|`` by GMRES right-preconditioned with
-    ``M^-1`` (``apply_M``), from ``x = 0``; None if ``max_iter`` iterations do
-    not get there.  Arnoldi by classical Gram-Schmidt applied twice (two
-    matrix products per iteration instead of a loop over the basis)."""
-    beta = float(np.linalg.norm(b))
-    if beta == 0.0:
-        return np.zeros_like(b)
-    V = np.zeros((max_iter + 1, b.size))
-    H = np.zeros((max_iter + 1, max_iter))
-    V[0] = b / beta
-    rhs = np.zeros(max_iter + 1)
-    rhs[0] = beta
-    for j in range(max_iter):
-        w = apply_A(apply_M(V[j]))
-        h = V[:j + 1] @ w
-        w -= h @ V[:j + 1]
-        h2 = V[:j + 1] @ w
-        w -= h2 @ V[:j + 1]
-        H[:j + 1, j] = h + h2
-        H[j + 1, j] = np.linalg.norm(w)
-        y, *_ = np.linalg.lstsq(H[:j + 2, :j + 1], rhs[:j + 2], rcond=None)
-        ratio = float(np.linalg.norm(H[:j + 2, :j + 1] @ y - rhs[:j + 2])) / beta
-        if ratio <= rtol:
-            return apply_M(y @ V[:j + 1])
-        if H[j + 1, j] <= 1e-14 * beta:  # invariant subspace without the solution
-            return None
-        # give up early when the rate so far would not reach rtol in max_iter
-        if j >= 2 and (ratio >= 1.0 or (j + 1) * math.log(rtol) / math.log(ratio) > max_iter):
-            return None
-        V[j + 1] = w / H[j + 1, j]
-    return None
-
-
-def _well_conditioned(A) -> bool:
-    """Cheap test that the symmetric matrix ``A`` is safely positive definite.
-
-    The smallest Cholesky pivot squared bounds the smallest eigenvalue from above
-    only loosely, so this errs towards regularising, which costs iterations, not
-    accuracy.
-    """
-    try:
-        L = np.linalg.cholesky(0.5 * (A + A.T))
-    except np.linalg.LinAlgError:
-        return False
-    return bool(np.min(np.diag(L)) ** 2 > 1e-8 * np.max(np.diag(A)))
-
-
-def _factorise(J):
-    """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
-    singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
-    place: no copy.  Solve with :func:`_lu_step`."""
-    with dense_kernel(J.shape[0]):
-        lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
-    if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
-        return None
-    return lu, piv
-
-
-def _lu_step(lu, rhs):
-    """``J^-1 rhs`` from the factors of ``J^T`` (:func:`_factorise`)."""
-    return sla.lu_solve(lu, rhs, trans=1, check_finite=False)
-
-
 def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
     n = q.shape[0]
-    frictionless = (mx == 0) & (my == 0)
-    # D = diag(1, mu_x, mu_y); frictionless contacts keep D = I with mu = 0
-    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx), np.where(frictionless, 1.0, my)])
-    mu = np.where(frictionless, 0.0, 1.0)
-    fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
+    D, mu, fixed, w_ref = _isotropic_scaling(W, mx, my)
     d = D.ravel()
     qs = q * D
-    diag = (np.diag(W) * d * d).reshape(n, 3)
-    w_ref = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
     rho = np.full(n, 1.0 / w_ref)
     # A singular W (rigid multibody problems, axes without friction) makes the
     # Newton matrix singular; proximal-point regularisation (solve
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
     # same fixed point.  An SPD W needs none.
     Ws = None if assume_spd else W * d[:, None] * d[None, :]  # formed only to test and regularise
-    eta = 0.0 if assume_spd or _well_conditioned(Ws) else 1e-2 * w_ref
+    eta = 0.0 if assume_spd or well_conditioned(Ws) else 1e-2 * w_ref
     # the factorised Newton matrix outlives the call only for an unregularised W
     keep = workspace if workspace is not None and eta == 0.0 else None
     if keep is not None:
@@ -504,8 +332,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
     while residual > tol and it < max_iter:
         # the operator and its scaling: D W D itself, regularised, or W and d
         Wp, dp = (Ws + eta * np.eye(3 * n), np.ones_like(d)) if eta > 0 else (W, d)
-        qp = qs - eta * s
-        F = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed, jacobian=False)
+        ac = (Wp, dp, qs - eta * s, mu, rho, fixed)  # the Alart-Curnier problem of this round
+        F = alart_curnier(s, *ac, jacobian=False)
         psi = 0.5 * float(F.ravel() @ F.ravel())
         # LU factors of a Newton matrix of this Wp, not necessarily taken at s
         lu = keep.lu if keep is not None else None
@@ -514,44 +342,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
             if it >= max_iter:
                 break
             merits.append(psi)
-            step = None
-            _, P, Q = _alart_curnier(s, Wp, dp, qp, mu, rho, fixed)
-            if lu is not None and 3 * n >= _KRYLOV_MIN_ORDER:
-                # Krylov step: GMRES on the generalised Jacobian at s, applied
-                # without forming it (O(n^2) a product), preconditioned by the
-                # LU factors of an older Newton matrix.  The Jacobian is
-                # piecewise constant in the stick / slip / open pattern and
-                # varies slowly within it, so the old factors usually make GMRES
-                # converge in a few products, where a new LU costs O(n^3).
-                step = _gmres(lambda v: _jacobian_product(P, Q, Wp, dp, v), -F.ravel(),
-                              lambda v: _lu_step(lu, v), _KRYLOV_RTOL, _KRYLOV_MAX_ITER)
-                if step is not None:
-                    # rows that are e_i (open contacts, pinned components) are
-                    # solved exactly, so that an open contact's force is exactly 0
-                    exact = np.all(Q == 0.0, axis=2) & np.all(P == np.eye(3)[None], axis=2)
-                    step = np.where(exact.ravel(), -F.ravel(), step)
-                    if keep is not None:
-                        keep.krylov_steps += 1
-            if step is None:
-                lu = _factorise(_newton_matrix(P, Q, Wp, dp))
-                if keep is not None:
-                    keep.lu = lu
-                    keep.factorisations += 1
-                if lu is not None:
-                    step = _lu_step(lu, -F.ravel())
-                else:  # lu_factor overwrote the matrix
-                    step = sla.lstsq(_newton_matrix(P, Q, Wp, dp), -F.ravel(), check_finite=False)[0]
-            step = step.reshape(n, 3)
-            ref = max(merits[-_NONMONOTONE_MEMORY:])
-            alpha = 1.0
-            while True:
-                s_try = s + alpha * step
-                F_try = _alart_curnier(s_try, Wp, dp, qp, mu, rho, fixed, jacobian=False)
-                psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
-                if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
-                    break
-                alpha *= 0.5
-            s, F, psi = s_try, F_try, psi_try
+            step, lu = _newton_direction(s, F, ac, lu, keep)
+            s, F, psi = _line_search(s, step, psi, max(merits[-_NONMONOTONE_MEMORY:]), ac)
             it += 1
             residual = true_residual(s)
             history.append(residual)
@@ -561,3 +353,71 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
             eta = max(0.2 * eta, 1e-10 * w_ref)
     # every exit follows a true_residual of the last s: r_final, u_final are its
     return LocalSolution(r_final, u_final, it, residual, residual <= tol, tuple(history), "newton")
+
+
+def _isotropic_scaling(W, mx, my):
+    """``D = diag(1, mu_x, mu_y)`` per contact (n, 3), the isotropic
+    coefficients ``mu`` (n,), the components pinned to zero (n, 3) and the
+    mean positive diagonal of ``D W D``.
+
+    Frictionless contacts keep ``D = I`` with ``mu = 0``.
+    """
+    n = mx.shape[0]
+    frictionless = (mx == 0) & (my == 0)
+    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx), np.where(frictionless, 1.0, my)])
+    mu = np.where(frictionless, 0.0, 1.0)
+    fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
+    d = D.ravel()
+    diag = (np.diag(W) * d * d).reshape(n, 3)
+    w_ref = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
+    return D, mu, fixed, w_ref
+
+
+def _newton_direction(s, F, ac, lu, keep):
+    """Semismooth Newton direction (n, 3) at ``s`` for the Alart-Curnier
+    problem ``ac``, and the LU factors to precondition the next one.
+
+    With ``lu`` (factors of an older Newton matrix) a Krylov step: GMRES on
+    the generalised Jacobian at ``s``, applied without forming it (O(n^2) a
+    product), preconditioned by ``lu``.  The Jacobian is piecewise constant in
+    the stick / slip / open pattern and varies slowly within it, so the old
+    factors usually make GMRES converge in a few products, where a new LU
+    costs O(n^3).  Otherwise, or if GMRES fails, a new LU (kept in ``keep``).
+    """
+    n = s.shape[0]
+    Wp, dp = ac[0], ac[1]
+    step = None
+    _, P, Q = alart_curnier(s, *ac)
+    if lu is not None and 3 * n >= _KRYLOV_MIN_ORDER:
+        step = gmres(lambda v: jacobian_product(P, Q, Wp, dp, v), -F.ravel(),
+                     lambda v: lu_step(lu, v), _KRYLOV_RTOL, _KRYLOV_MAX_ITER)
+        if step is not None:
+            # rows that are e_i (open contacts, pinned components) are
+            # solved exactly, so that an open contact's force is exactly 0
+            exact = np.all(Q == 0.0, axis=2) & np.all(P == np.eye(3)[None], axis=2)
+            step = np.where(exact.ravel(), -F.ravel(), step)
+            if keep is not None:
+                keep.krylov_steps += 1
+    if step is None:
+        lu = factorise_newton_matrix(newton_matrix(P, Q, Wp, dp))
+        if keep is not None:
+            keep.lu = lu
+            keep.factorisations += 1
+        if lu is not None:
+            step = lu_step(lu, -F.ravel())
+        else:  # lu_factor overwrote the matrix
+            step = sla.lstsq(newton_matrix(P, Q, Wp, dp), -F.ravel(), check_finite=False)[0]
+    return step.reshape(n, 3), lu
+
+
+def _line_search(s, step, psi, ref, ac):
+    """Non-monotone Armijo backtracking on ``psi = |F|^2 / 2`` against the
+    reference merit ``ref`` (the largest of the last few): the new ``s``, ``F``, ``psi``."""
+    alpha = 1.0
+    while True:
+        s_try = s + alpha * step
+        F_try = alart_curnier(s_try, *ac, jacobian=False)
+        psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
+        if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
+            return s_try, F_try, psi_try
+        alpha *= 0.5

@@ -277,6 +277,29 @@ class Command:
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
 
 
+class TangentCache:
+    """A state's handle on its cached tangent (:class:`fe_contact.tangent.Tangent`).
+
+    ``value`` is the tangent or None.  Each :class:`State` gets its own handle;
+    the steps branched from the state read it and leave it alone, except a step
+    told ``consume=True``, which calls :meth:`release` at a refresh so that one
+    factorised tangent is alive instead of two.  The frozen state itself is
+    never modified: the handle is the one mutable thing it holds.
+    """
+
+    __slots__ = ("value",)
+
+    def __init__(self, value=None):
+        self.value = value
+
+    def release(self) -> None:
+        """Drop the cached tangent (the state steps on without it, from a new one)."""
+        self.value = None
+
+    def __repr__(self) -> str:
+        return f"TangentCache({'empty' if self.value is None else type(self.value).__name__})"
+
+
 @dataclass(frozen=True)
 class State:
     """Path-dependent solution after some load steps.
@@ -297,11 +320,11 @@ class State:
         norms), m.
     step_index : int
         Number of load steps taken.
-    tangent : object or None
-        Factorised tangent and flexibility matrix of an earlier configuration,
-        reused by the next step when ``SolverOptions.reuse_tangent`` (a cache:
-        read-only, shared by states branched from this one, excluded from
-        comparisons).
+    tangent : TangentCache
+        Handle on the factorised tangent and flexibility matrix of an earlier
+        configuration, reused by the next step when
+        ``SolverOptions.reuse_tangent`` (a cache: excluded from comparisons;
+        ``None`` gives an empty one).
     """
 
     displacement: np.ndarray
@@ -310,9 +333,13 @@ class State:
     upper_rotation: float
     slip_path: np.ndarray
     step_index: int = 0
-    tangent: object = field(default=None, compare=False, repr=False)
+    tangent: TangentCache = field(default_factory=TangentCache, compare=False, repr=False)
 
     def __post_init__(self):
+        if self.tangent is None:
+            object.__setattr__(self, "tangent", TangentCache())
+        elif not isinstance(self.tangent, TangentCache):
+            raise ValueError(f"tangent must be a TangentCache or None, got {type(self.tangent).__name__}")
         for name in ("displacement", "reaction", "upper_translation", "slip_path"):
             a = np.array(getattr(self, name), dtype=float)  # copy: never alias a caller's array
             a.setflags(write=False)

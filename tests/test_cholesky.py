@@ -10,7 +10,7 @@ import pytest
 from fe_contact import Friction, Material, Model, block_mesh, initial_state
 from fe_contact.cholesky import NotPositiveDefinite, factorise, supernodal_structure
 from fe_contact.elasticity import internal_force_and_tangent
-from fe_contact.step import factorise_free
+from fe_contact.tangent import factorise_free
 
 SOLVE_RTOL = 1e-11  # relative to the solution's largest entry (K_ff condition number ~1e4-1e5)
 
@@ -94,7 +94,7 @@ def test_a_mesh_off_the_grid_steps_on_superlu_like_the_grid():
     import dataclasses
 
     from fe_contact import Command, step
-    from fe_contact.step import _Tangent
+    from fe_contact.tangent import Tangent
 
     grid = model_of((4, 4, 2))
     assert grid.factor_structure.n_root == 3 * grid.n_contacts
@@ -102,7 +102,7 @@ def test_a_mesh_off_the_grid_steps_on_superlu_like_the_grid():
     nodes[grid.mesh.n_nodes // 2, 0] += 1e-9
     moved = Model(dataclasses.replace(grid.mesh, nodes=nodes), grid.material, grid.friction, quadrature=2)
     assert moved.factor_structure is None
-    methods = [_Tangent(m, tangent_of(m)).method for m in (grid, moved)]
+    methods = [Tangent(m, tangent_of(m)).method for m in (grid, moved)]
     assert methods == ["multifrontal", "superlu"]
     (_, a), (_, b) = (step(m, initial_state(m), Command(dz=-1e-4)) for m in (grid, moved))
     assert a.converged and b.converged

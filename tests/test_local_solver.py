@@ -392,7 +392,7 @@ def test_alart_curnier_jacobian_matches_finite_differences():
     against central differences of the function itself, at points where every
     contact is safely inside one of its smooth pieces (open, sticking or
     sliding, active or not) and with one friction axis pinned."""
-    from fe_contact.local_solver import _alart_curnier, _jacobian_product
+    from fe_contact.alart_curnier import alart_curnier, jacobian_product
 
     rng = np.random.default_rng(11)
     n, m = 40, 120
@@ -416,12 +416,24 @@ def test_alart_curnier_jacobian_matches_finite_differences():
             break
     active, stick = p > 0, (zn <= R) & (R > 0)
     assert active.any() and (~active).any() and stick.any() and (active & ~stick).any()
-    F, P, Q = _alart_curnier(s, W, d, qs, mu, rho, fixed)
-    np.testing.assert_array_equal(F, _alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=False))
+    F, P, Q = alart_curnier(s, W, d, qs, mu, rho, fixed)
+    np.testing.assert_array_equal(F, alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=False))
     eps = 1e-7
     for _ in range(5):
         v = rng.standard_normal(3 * n)
-        fd = (_alart_curnier(s + eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)
-              - _alart_curnier(s - eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)).ravel() / (2 * eps)
-        Jv = _jacobian_product(P, Q, W, d, v)
+        fd = (alart_curnier(s + eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)
+              - alart_curnier(s - eps * v.reshape(n, 3), W, d, qs, mu, rho, fixed, jacobian=False)).ravel() / (2 * eps)
+        Jv = jacobian_product(P, Q, W, d, v)
         np.testing.assert_allclose(Jv, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
+
+
+def test_gmres_gives_up_on_a_product_that_is_not_finite():
+    """Old LU factors of a nearly singular Newton matrix can overflow as a
+    preconditioner: GMRES gives up (the Newton step then factorises afresh)
+    instead of passing inf to a least-squares solve that raises LinAlgError."""
+    from fe_contact.alart_curnier import gmres
+
+    b = np.ones(5)
+    assert gmres(lambda v: v, b, lambda v: v * np.inf, 1e-2, 20) is None
+    x = gmres(lambda v: 2.0 * v, b, lambda v: v, 1e-12, 20)
+    np.testing.assert_allclose(x, 0.5 * b, rtol=1e-12)

@@ -1,6 +1,7 @@
 """Acceptance tests of the FE contact step (issue 3): analytic nonlinear solution,
 equilibrium, symmetry, associated slip rule, dissipation, separation, refinement."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -256,7 +257,7 @@ def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
 
     from fe_contact.cholesky import NotPositiveDefinite
 
-    step_module = importlib.import_module("fe_contact.step")
+    tangent_module = importlib.import_module("fe_contact.tangent")
     from fe_contact.elasticity import internal_force_and_tangent
 
     model = make_model(0.3, 0.05, angle_deg=30.0, divisions=(4, 3, 3))
@@ -264,14 +265,14 @@ def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
     state, multifrontal_reports = run(model, cmds[:2])
     _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
                                          model.material, model.pattern)
-    multifrontal = step_module._Tangent(model, K)
+    multifrontal = tangent_module.Tangent(model, K)
 
     def refuse(structure, data):
         raise NotPositiveDefinite("refused by the test")
 
-    monkeypatch.setattr(step_module, "factorise", refuse)
-    monkeypatch.setattr(step_module, "_RHS_BLOCK_ENTRIES", 5000)  # W in blocks of a few columns
-    sparse = step_module._Tangent(model, K)
+    monkeypatch.setattr(tangent_module, "factorise", refuse)
+    monkeypatch.setattr(tangent_module, "_RHS_BLOCK_ENTRIES", 5000)  # W in blocks of a few columns
+    sparse = tangent_module.Tangent(model, K)
     assert (multifrontal.method, sparse.method) == ("multifrontal", "superlu")
     W_multifrontal = multifrontal.W_scaled * multifrontal.w_mean
     W_sparse = sparse.W_scaled * sparse.w_mean
@@ -321,7 +322,7 @@ def test_singular_tangent_is_reported_with_its_status(monkeypatch):
 
     from fe_contact.cholesky import NotPositiveDefinite
 
-    step_module = importlib.import_module("fe_contact.step")
+    tangent_module = importlib.import_module("fe_contact.tangent")
 
     def not_spd(*args, **kwargs):
         raise NotPositiveDefinite("forced")
@@ -329,8 +330,8 @@ def test_singular_tangent_is_reported_with_its_status(monkeypatch):
     def singular(*args, **kwargs):
         raise RuntimeError("Factor is exactly singular")
 
-    monkeypatch.setattr(step_module, "factorise", not_spd)
-    monkeypatch.setattr(step_module, "factorise_free", singular)
+    monkeypatch.setattr(tangent_module, "factorise", not_spd)
+    monkeypatch.setattr(tangent_module, "factorise_free", singular)
     model = make_model(0.3, 0.1, divisions=(2, 2, 1))
     s0 = initial_state(model)
     s1, rep = step(model, s0, Command(dz=-0.1e-3))
@@ -345,7 +346,7 @@ def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
     import importlib
     from types import SimpleNamespace
 
-    refresh_pays = importlib.import_module("fe_contact.step")._refresh_pays
+    refresh_pays = importlib.import_module("fe_contact.tangent").refresh_pays
     opts = SolverOptions(newton_tol=1e-10, newton_max_iter=30)
     cheap = SimpleNamespace(build_s=0.01, iteration_s=0.005)
     costly = SimpleNamespace(build_s=50.0, iteration_s=1.0)
@@ -364,14 +365,14 @@ def test_consumed_state_gives_up_its_tangent_at_a_refresh_and_nothing_else(monke
     import importlib
 
     # refresh whenever the contraction is slower than 1e-6 per iteration
-    monkeypatch.setattr(importlib.import_module("fe_contact.step"), "_refresh_pays", lambda *args: True)
+    monkeypatch.setattr(importlib.import_module("fe_contact.tangent"), "refresh_pays", lambda *args: True)
     model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
     s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
     kept, rep_kept = step(model, s1, push(45.0))
     assert rep_kept.tangent_updates > 0  # the tiny refresh_ratio makes the step refresh
-    assert s1.tangent is not None
+    assert s1.tangent.value is not None
     consumed, rep_consumed = step(model, s1, push(45.0), consume=True)
-    assert s1.tangent is None
+    assert s1.tangent.value is None
     np.testing.assert_array_equal(consumed.displacement, kept.displacement)
     np.testing.assert_array_equal(consumed.reaction, kept.reaction)
     assert rep_consumed.tangent_updates == rep_kept.tangent_updates
@@ -394,7 +395,7 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
     from fe_contact.cholesky import NotPositiveDefinite
     from fe_contact.elasticity import internal_force_and_tangent
 
-    step_module = importlib.import_module("fe_contact.step")
+    tangent_module = importlib.import_module("fe_contact.tangent")
     dz = -1.5e-3
     models = [
         Model(block_mesh((0.02, 0.02, 0.01), (4, 4, 3)), Material(210e9, 0.3), Friction(0.3, 0.05, 0.0),
@@ -406,12 +407,12 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
     U[full.mesh.upper, 2] += dz
     _, K, _ = internal_force_and_tangent(full.geometry, full.mesh.elements, U, full.material, full.pattern)
     with pytest.raises(NotPositiveDefinite):
-        step_module._Tangent(full, K, lu_fallback=False)
+        tangent_module.Tangent(full, K, lu_fallback=False)
 
     def no_superlu(*args, **kwargs):
         raise AssertionError("SuperLU fallback taken")
 
-    monkeypatch.setattr(step_module, "_LUFactor", no_superlu)
+    monkeypatch.setattr(tangent_module, "LUFactor", no_superlu)
     results = [step(model, initial_state(model), Command(dz=dz)) for model in models]
     for state, rep in results:
         assert rep.converged, rep.message
@@ -431,10 +432,10 @@ def test_after_a_fallback_to_the_start_tangent_a_step_refreshes_no_more(monkeypa
 
     from fe_contact.cholesky import NotPositiveDefinite
 
-    step_module = importlib.import_module("fe_contact.step")
+    tangent_module = importlib.import_module("fe_contact.tangent")
     model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
     s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
-    real = step_module._Tangent
+    real = tangent_module.Tangent
 
     class Indefinite(real):
         def __init__(self, model, K, lu_fallback=True):
@@ -442,8 +443,8 @@ def test_after_a_fallback_to_the_start_tangent_a_step_refreshes_no_more(monkeypa
                 raise NotPositiveDefinite("forced")
             super().__init__(model, K, lu_fallback)
 
-    monkeypatch.setattr(step_module, "_refresh_pays", lambda *args: True)
-    monkeypatch.setattr(step_module, "_Tangent", Indefinite)
+    monkeypatch.setattr(tangent_module, "refresh_pays", lambda *args: True)
+    monkeypatch.setattr(tangent_module, "Tangent", Indefinite)
     s2, rep = step(model, s1, push(45.0))
     assert rep.converged, rep.message
     assert rep.newton_iterations > 3  # room for more than one refresh
@@ -529,14 +530,14 @@ def test_solve_with_contact_equals_one_solve_with_the_contact_force_added(factor
 
     from fe_contact.elasticity import internal_force_and_tangent
 
-    step_module = importlib.import_module("fe_contact.step")
+    tangent_module = importlib.import_module("fe_contact.tangent")
     model = make_model(0.3, 0.05, angle_deg=20.0, divisions=(5, 4, 3))
     rng = np.random.default_rng(0)
     U = 1e-5 * rng.standard_normal((model.mesh.n_nodes, 3))
     _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, U, model.material, model.pattern)
-    tangent = step_module._Tangent(model, K)
+    tangent = tangent_module.Tangent(model, K)
     if factor == "superlu":
-        tangent.factor = step_module._LUFactor(K, model.free_dofs, None)
+        tangent.factor = tangent_module.LUFactor(K, model.free_dofs, None)
     free = model.free_dofs
     K_dense = K[free][:, free].toarray()
     b = rng.standard_normal(free.size)
@@ -547,3 +548,63 @@ def test_solve_with_contact_equals_one_solve_with_the_contact_force_added(factor
     x0, x = np.linalg.solve(K_dense, b), np.linalg.solve(K_dense, rhs)
     np.testing.assert_allclose(contact.ravel(), x0[tangent.contact_index], rtol=0, atol=1e-12 * np.abs(x0).max())
     np.testing.assert_allclose(finish(f), x, rtol=0, atol=1e-12 * np.abs(x).max())
+
+
+@pytest.mark.parametrize("where", ["contact_problem", "update"])
+def test_a_linear_solve_that_breaks_down_is_a_status_not_an_exception(monkeypatch, where):
+    """NaN out of the solve with the tangent (forced here; a nearly singular
+    factor gives inf) ends the step with status not_finite and the state kept,
+    whether it reaches the contact problem ``q`` or only the displacement
+    update; neither leaks the ValueError of a non-finite ``q`` or ``U`` from
+    the layers below."""
+    import importlib
+
+    Tangent = importlib.import_module("fe_contact.tangent").Tangent
+    real = Tangent.solve_with_contact
+
+    def broken(self, rhs_free):
+        contact, finish = real(self, rhs_free)
+        if where == "contact_problem":
+            return contact * np.nan, finish
+        return contact, lambda force_world: finish(force_world) * np.nan
+
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
+    monkeypatch.setattr(Tangent, "solve_with_contact", broken)
+    s2, rep = step(model, s1, push(45.0))
+    assert rep.status.value == "not_finite"
+    assert "iteration 0" in rep.message
+    assert s2 is s1
+    assert np.all(np.isfinite(rep.displacement))  # the last good iterate, for diagnosis
+
+
+@pytest.mark.parametrize("field", ["displacement", "reaction", "slip_path"])
+def test_a_state_that_is_not_finite_or_not_the_models_is_refused(field):
+    """Invalid input at the public boundary is a ValueError naming the field."""
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s0 = initial_state(model)
+    bad = np.array(getattr(s0, field))
+    bad.flat[0] = np.nan
+    with pytest.raises(ValueError, match=f"state.{field} must be finite"):
+        step(model, dataclasses.replace(s0, **{field: bad}), Command(dz=-0.1e-3))
+    with pytest.raises(ValueError, match=f"state.{field} has shape"):
+        step(model, dataclasses.replace(s0, **{field: bad[:-1]}), Command(dz=-0.1e-3))
+
+
+def test_a_state_holds_its_tangent_through_a_handle_that_steps_share():
+    """A State's cache is a TangentCache handle: None gives an empty one, any
+    other object is refused; a converged step caches its tangent in the new
+    state's own handle and leaves the input state's alone unless consumed."""
+    from fe_contact import TangentCache
+
+    model = make_model(0.3, 0.1, divisions=(2, 2, 1))
+    s0 = initial_state(model)
+    assert isinstance(s0.tangent, TangentCache) and s0.tangent.value is None
+    assert dataclasses.replace(s0, tangent=None).tangent.value is None
+    with pytest.raises(ValueError, match="TangentCache"):
+        dataclasses.replace(s0, tangent=object())
+    s1, _ = step(model, s0, Command(dz=-0.1e-3))
+    s2, _ = step(model, s1, push(45.0))
+    s2b, _ = step(model, s1, push(30.0))
+    assert s1.tangent.value is not None and s2.tangent.value is not None
+    assert s1.tangent is not s2.tangent and s2.tangent is not s2b.tangent

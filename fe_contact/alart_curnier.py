@@ -1,0 +1,195 @@
+"""Alart-Curnier equations of the isotropic frictional contact problem and the
+linear algebra of a semismooth Newton step on them (the ``"newton"`` method of
+:mod:`fe_contact.local_solver`).
+
+For scaled forces ``s`` (n, 3), ordered ``(n, t_x, t_y)``, with
+``u_s = D W D s + q_s`` and a per-contact ``rho > 0``:
+
+    F_n(s) = s_n - max(0, s_n - rho u_n),
+    F_t(s) = s_t - proj_{|z| <= mu max(0, s_n - rho u_n)}(z),   z = s_t - rho u_t,
+
+and ``F(s) = 0`` exactly when ``s`` solves the contact problem with an
+isotropic cone of coefficient ``mu`` (Alart and Curnier, CMAME 92:353-375,
+1991).  An element of its generalised Jacobian is
+``blockdiag(P) + blockdiag(Q) D W D`` (3 n, 3 n), given as its 3x3 blocks
+``P, Q`` (n, 3, 3).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg as sla
+from numba import njit
+
+from ._threads import dense_kernel
+
+
+def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
+    """AC function ``F(s)`` and (if ``jacobian``) one element of its generalised
+    Jacobian, ``blockdiag(P) + blockdiag(Q) D W D``, as its 3x3 blocks ``P, Q``
+    (n, 3, 3) (:func:`newton_matrix` forms it, :func:`jacobian_product`
+    applies it).
+
+    Isotropic cone with coefficients ``mu`` (1 or 0) on the scaled variables
+    of the problem ``u_s = D W D s + q_s``, ``D = diag(d)`` (``D W D`` is never
+    formed: at 1e4 contacts it is another 7 GB matrix).  ``fixed`` marks
+    scaled components pinned to 0 (axes with zero friction).  The product
+    with ``W`` is BLAS; the per-contact rest is :func:`_ac_kernel`.
+    """
+    n = s.shape[0]
+    u = (d * (W @ (d * s.ravel()))).reshape(n, 3) + qs
+    size = n if jacobian else 0
+    P, Q = np.zeros((size, 3, 3)), np.zeros((size, 3, 3))
+    F = _ac_kernel(np.ascontiguousarray(s), u, mu, rho, fixed, P, Q)
+    return (F, P, Q) if jacobian else F
+
+
+@njit(cache=True)
+def _ac_kernel(s, u, mu, rho, fixed, P, Q):
+    """``F`` of :func:`alart_curnier` for displacements ``u``, and its
+    Jacobian blocks into ``P``, ``Q`` (zeroed, shape (n, 3, 3)) unless they
+    have no rows.
+
+    Per contact, with ``p = s_n - rho u_n``, ``R = mu max(p, 0)``, ``z = s_t -
+    rho u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
+
+    * normal row, active (p > 0): ``rho W_n`` (P = 0, Q = rho e_n);
+      inactive: ``e_n`` (P = e_n, Q = 0);
+    * tangent rows, stick (|z| <= R, R > 0): ``rho W_t`` (P = 0, Q = rho [0 I]);
+      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)`` with
+      ``dR = mu (e_n - rho W_n)`` when active, else 0;
+    * components pinned to zero: ``F = s``, row ``e_i``.
+    """
+    n = s.shape[0]
+    F = np.empty((n, 3))
+    jac = P.shape[0] > 0
+    for c in range(n):
+        r = rho[c]
+        p = s[c, 0] - r * u[c, 0]
+        active = p > 0.0
+        R = mu[c] * p if active else 0.0
+        z1 = s[c, 1] - r * u[c, 1]
+        z2 = s[c, 2] - r * u[c, 2]
+        zn = math.sqrt(z1 * z1 + z2 * z2)
+        stick = zn <= R and R > 0.0
+        h1, h2 = (z1 / zn, z2 / zn) if zn > 0.0 else (0.0, 0.0)
+        F[c, 0] = r * u[c, 0] if active else s[c, 0]
+        if stick:
+            F[c, 1], F[c, 2] = r * u[c, 1], r * u[c, 2]
+        else:
+            F[c, 1], F[c, 2] = s[c, 1] - R * h1, s[c, 2] - R * h2
+        if jac:
+            if active:
+                Q[c, 0, 0] = r
+            else:
+                P[c, 0, 0] = 1.0
+            if stick:
+                Q[c, 1, 1] = r
+                Q[c, 2, 2] = r
+            else:
+                coef = R / zn if zn > 0.0 else 0.0
+                m_act = mu[c] if active else 0.0
+                h = (h1, h2)
+                for i in range(2):
+                    P[c, 1 + i, 0] = -m_act * h[i]
+                    Q[c, 1 + i, 0] = m_act * r * h[i]
+                    for j in range(2):
+                        proj = (1.0 if i == j else 0.0) - h[i] * h[j]
+                        P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
+                        Q[c, 1 + i, 1 + j] = coef * r * proj
+        for i in range(3):
+            if fixed[c, i]:
+                F[c, i] = s[c, i]
+                if jac:
+                    for j in range(3):
+                        P[c, i, j] = 1.0 if i == j else 0.0
+                        Q[c, i, j] = 0.0
+    return F
+
+
+def newton_matrix(P, Q, W, d) -> np.ndarray:
+    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n)."""
+    n = P.shape[0]
+    m = 3 * n
+    J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, m)).reshape(m, m)
+    J *= d
+    blocks = J.reshape(n, 3, n, 3)
+    idx = np.arange(n)
+    blocks[idx, :, idx, :] += P
+    return J
+
+
+def jacobian_product(P, Q, W, d, v) -> np.ndarray:
+    """``(blockdiag(P) + blockdiag(Q) D W D) v`` without forming the matrix (3n,)."""
+    n = P.shape[0]
+    Wv = (d * (W @ (d * v))).reshape(n, 3)
+    return (np.einsum("cij,cj->ci", P, v.reshape(n, 3)) + np.einsum("cij,cj->ci", Q, Wv)).ravel()
+
+
+def gmres(apply_A, b, apply_M, rtol: float, max_iter: int) -> np.ndarray | None:
+    """``x`` with ``|A x - b| <= rtol |b|`` by GMRES right-preconditioned with
+    ``M^-1`` (``apply_M``), from ``x = 0``; None if ``max_iter`` iterations do
+    not get there or a product is not finite (the caller then factorises).
+    Arnoldi by classical Gram-Schmidt applied twice (two matrix products per
+    iteration instead of a loop over the basis)."""
+    beta = float(np.linalg.norm(b))
+    if beta == 0.0:
+        return np.zeros_like(b)
+    V = np.zeros((max_iter + 1, b.size))
+    H = np.zeros((max_iter + 1, max_iter))
+    V[0] = b / beta
+    rhs = np.zeros(max_iter + 1)
+    rhs[0] = beta
+    for j in range(max_iter):
+        w = apply_A(apply_M(V[j]))
+        if not np.all(np.isfinite(w)):  # overflowed (old factors of a nearly singular matrix)
+            return None
+        h = V[:j + 1] @ w
+        w -= h @ V[:j + 1]
+        h2 = V[:j + 1] @ w
+        w -= h2 @ V[:j + 1]
+        H[:j + 1, j] = h + h2
+        H[j + 1, j] = np.linalg.norm(w)
+        y, *_ = np.linalg.lstsq(H[:j + 2, :j + 1], rhs[:j + 2], rcond=None)
+        ratio = float(np.linalg.norm(H[:j + 2, :j + 1] @ y - rhs[:j + 2])) / beta
+        if ratio <= rtol:
+            return apply_M(y @ V[:j + 1])
+        if H[j + 1, j] <= 1e-14 * beta:  # invariant subspace without the solution
+            return None
+        # give up early when the rate so far would not reach rtol in max_iter
+        if j >= 2 and (ratio >= 1.0 or (j + 1) * math.log(rtol) / math.log(ratio) > max_iter):
+            return None
+        V[j + 1] = w / H[j + 1, j]
+    return None
+
+
+def well_conditioned(A) -> bool:
+    """Cheap test that the symmetric matrix ``A`` is safely positive definite.
+
+    The smallest Cholesky pivot squared bounds the smallest eigenvalue from above
+    only loosely, so this errs towards regularising, which costs iterations, not
+    accuracy.
+    """
+    try:
+        L = np.linalg.cholesky(0.5 * (A + A.T))
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.min(np.diag(L)) ** 2 > 1e-8 * np.max(np.diag(A)))
+
+
+def factorise_newton_matrix(J):
+    """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
+    singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
+    place: no copy.  Solve with :func:`lu_step`."""
+    with dense_kernel(J.shape[0]):
+        lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
+    if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
+        return None
+    return lu, piv
+
+
+def lu_step(lu, rhs):
+    """``J^-1 rhs`` from the factors of ``J^T`` (:func:`factorise_newton_matrix`)."""
+    return sla.lu_solve(lu, rhs, trans=1, check_finite=False)

@@ -1,0 +1,98 @@
+"""Measurements of a load step, read off the last Newton iterate.
+
+Per contact node ``i`` (arrays ordered as ``mesh.lower``), with ``r_i = (r_n,
+r_tx, r_ty)`` the local contact force, N, and ``du_i`` the in-plane
+displacement increment over the step, m (world x, y):
+
+    pressure     p_i = r_n / A_i                          (A_i tributary area, m^2)
+    gap          g_i = Z_i + u_z                          (m)
+    dissipation  D = - sum_i r_t,i . (T_t du_i)           (J, >= 0 for a dissipative law)
+    equilibrium  |sum_i T^T r_i + f_upper| / force scale  (f_upper the drive's force, N)
+
+A node is separated when ``r_n <= SEPARATION_FORCE max |r|`` and slipping when
+in contact and ``|du_i| > SLIP_DISPLACEMENT max(block size)``; otherwise it
+sticks.  Centroids, the lower face's yaw and the twist are the face
+kinematics of :mod:`fe_contact.pose`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .model import Command, Model, NodeStatus, State, StepReport
+from .newton import Equilibrium
+from .pose import face_centroid_displacement, planar_yaw, twist_angle
+
+SEPARATION_FORCE = 1e-9
+"""Normal force, relative to the largest contact force component, at or below which a node counts as separated."""
+SLIP_DISPLACEMENT = 1e-9
+"""Tangential increment, relative to the largest block dimension, above which a contact node counts as slipping."""
+
+
+def node_status(model: Model, r: np.ndarray, slip_inc: np.ndarray) -> np.ndarray:
+    """:class:`~fe_contact.model.NodeStatus` of each contact node (n_lower,)
+    int8, from its local force ``r`` (n_lower, 3) and in-plane increment
+    ``slip_inc`` (n_lower, 2)."""
+    r_scale = float(np.abs(r).max()) if r.size else 0.0
+    separated = r[:, 0] <= SEPARATION_FORCE * r_scale
+    slipping = ~separated & (
+        np.linalg.norm(slip_inc, axis=1) > SLIP_DISPLACEMENT * max(model.mesh.size)
+    )
+    status = np.where(separated, NodeStatus.SEPARATED, np.where(slipping, NodeStatus.SLIP, NodeStatus.STICK))
+    return status.astype(np.int8)
+
+
+def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: float) -> StepReport:
+    """The :class:`~fe_contact.model.StepReport` of a step from ``state`` under
+    ``command`` that ended in ``eq``; ``t0`` is the ``time.perf_counter()`` at
+    its start."""
+    mesh, lower, T = model.mesh, model.mesh.lower, model.frame
+    U, r = eq.displacement, eq.reaction
+    contact_world = r @ T
+    slip_inc = U[lower, :2] - state.displacement[lower, :2]
+    du_local = slip_inc @ T[1:, :2].T  # (n_lower, 2) in (t_x, t_y)
+    upper_c = face_centroid_displacement(U[mesh.upper], model.upper_area)
+    lower_c = face_centroid_displacement(U[lower], model.lower_area)
+    X_lower = mesh.nodes[lower]
+    f_int = eq.internal_force
+    upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+    total_contact = contact_world.sum(axis=0)
+    force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
+    eq_err = float(np.linalg.norm(total_contact + upper_force) / force_scale) if force_scale > 0 else 0.0
+    logs = eq.iterations
+    return StepReport(
+        status=eq.status,
+        message=eq.message or "converged",
+        step_index=state.step_index + 1,
+        command=command,
+        displacement=U,
+        reaction_local=r,
+        reaction_world=contact_world,
+        pressure=r[:, 0] / model.lower_area,
+        slip_increment=slip_inc,
+        slip=np.linalg.norm(U[lower, :2], axis=1),
+        slip_path=state.slip_path + np.linalg.norm(slip_inc, axis=1),
+        gap=mesh.nodes[lower, 2] + U[lower, 2],
+        node_status=node_status(model, r, slip_inc),
+        upper_centroid=upper_c,
+        lower_centroid=lower_c,
+        lower_yaw=planar_yaw(X_lower, X_lower + U[lower], model.lower_area),
+        twist=twist_angle(upper_c, lower_c, max(mesh.size)),
+        lag=upper_c[:2] - lower_c[:2],
+        normal_force=float(r[:, 0].sum()),
+        tangential_force=total_contact[:2],
+        upper_force=upper_force,
+        equilibrium_error=eq_err,
+        dissipation=float(-(r[:, 1:] * du_local).sum()),
+        newton_iterations=len(logs),
+        contact_iterations=sum(log.contact_iterations for log in logs),
+        newton_residual=eq.residual,
+        contact_residual=logs[-1].contact_residual if logs else 0.0,
+        min_det_f=float(eq.min_det_f),
+        wall_time=time.perf_counter() - t0,
+        iterations=tuple(logs),
+        tangent_updates=eq.tangent_updates,
+        timings=eq.timings,
+    )

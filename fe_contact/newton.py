@@ -1,0 +1,244 @@
+"""Newton equilibrium loop of a load step with the contact correction on the
+contact nodes only (paper sect. 8, Box 3 / Box 4).
+
+At Newton iterate ``U_i`` (n_nodes, 3), m, with contact forces ``r_i``
+(n_contacts, 3), N, local ``(n, t_x, t_y)``, the linearised problem is
+condensed onto the contact dofs with the flexibility matrix
+``W = T C K_ff^-1 C^T T^T`` of :mod:`fe_contact.tangent`:
+
+    u = W r + q,   q = T (w_i + C K_ff^-1 (-R_i)) - W r_i,
+
+where ``w_i`` holds, per contact node, the world tangential displacement increment
+over the step and the normal gap, and ``R_i = f_int(U_i) - C^T T^T r_i`` is the
+out-of-balance force of the free dofs.  The local solver returns ``r`` satisfying
+the De Saxce law (paper eq. 42-45) for this ``u``; the displacement update follows
+without refactorising.  Contact kinematics against the plane z = 0 are exactly
+linear in ``U``, so at convergence the contact law holds for the true
+displacements and the only Newton nonlinearity is geometric.
+
+The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
+of the upper-face and contact force norms and the command's own out-of-balance
+force.  A breakdown (inverted element, non-finite numbers, a tangent that cannot
+be factorised, a local solve that does not converge) ends it with a
+:class:`~fe_contact.model.Status`, never an exception.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from .elasticity import internal_force, internal_force_and_tangent
+from .local_solver import solve_local
+from .model import IterLog, Model, State, Status
+from .tangent import Tangent, refresh_due, refreshed_tangent
+
+
+@dataclass(frozen=True)
+class Equilibrium:
+    """Where the Newton loop of a step ended.
+
+    ``displacement`` (n_nodes, 3), m, and ``reaction`` (n_contacts, 3), N,
+    local, are the last iterate (the solution when ``status`` is CONVERGED);
+    ``internal_force`` (n_dofs,), N, is at that iterate (None if the loop
+    stopped before computing one).  ``force_scale`` is the command's
+    out-of-balance force, N; ``residual`` the last relative out-of-balance
+    force; ``tangent`` the tangent to cache for the next step, or None.
+    """
+
+    status: Status
+    message: str
+    displacement: np.ndarray
+    reaction: np.ndarray
+    internal_force: np.ndarray | None
+    min_det_f: float
+    residual: float
+    force_scale: float
+    iterations: tuple[IterLog, ...]
+    tangent_updates: int
+    tangent: Tangent | None
+    timings: dict
+
+
+@contextmanager
+def _timed(timings: dict, phase: str):
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[phase] += time.perf_counter() - t0
+
+
+def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
+                consume: bool = False) -> Equilibrium:
+    """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
+    the upper face at its commanded pose (``U`` is updated in place).
+
+    The tangent cached in ``state`` is reused when ``SolverOptions.reuse_tangent``;
+    with ``consume`` it is released at a refresh (see :func:`fe_contact.step.step`).
+    """
+    opts = model.options
+    tangent = state.tangent.value if opts.reuse_tangent else None
+    workspace = tangent.workspace.copy() if tangent is not None else None
+    r = np.array(state.reaction, dtype=float)
+    timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
+    logs: list[IterLog] = []
+    status, message = Status.NEWTON_NOT_CONVERGED, ""
+    prev_res = rel_res = math.inf
+    n_tangents, at_start, scale0, f_int, min_det = 0, False, 0.0, None, math.nan
+    for it in range(opts.newton_max_iter + 1):
+        need_tangent = tangent is None or not opts.reuse_tangent
+        with _timed(timings, "assembly"):
+            f_int, K, min_det = _forces(model, state, U, need_tangent, it)
+        breakdown = _breakdown(f_int, min_det, it)
+        if breakdown is not None:
+            status, message = breakdown
+            break
+        contact_world, f_contact = _contact_forces(model, r)
+        if it == 0:
+            scale0 = _command_force_scale(model, state, U, f_contact)
+        R, rel_res = _out_of_balance(model, f_int, f_contact, contact_world, scale0)
+        if it > 0 and rel_res <= opts.newton_tol:
+            status = Status.CONVERGED
+            break
+        if it == opts.newton_max_iter:
+            message = (
+                f"Newton loop did not converge in {opts.newton_max_iter} iterations "
+                f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})"
+            )
+            break
+        need_tangent = need_tangent or refresh_due(tangent, at_start, it, rel_res, prev_res, opts)
+        prev_res = rel_res
+        if need_tangent:
+            # the old factors go before the new ones come (and before the
+            # assembly's temporaries: 1.8 GB at 2.3e5 dofs)
+            tangent = workspace = None
+            if consume:
+                state.tangent.release()  # the caller gave the state up
+            if K is None:
+                with _timed(timings, "assembly"):
+                    _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, U,
+                                                         model.material, model.pattern)
+            handed, K = [K], None
+            with _timed(timings, "tangent"):
+                tangent, fallback, failure = refreshed_tangent(model, state, handed, it, timings)
+            if tangent is None:
+                status, message = Status.TANGENT_SINGULAR, failure
+                break
+            at_start = at_start or fallback
+            n_tangents += 1
+            workspace = tangent.workspace.copy()
+        local, dU_free, failure = _contact_correction(model, state, tangent, workspace, U, R, r, it, timings,
+                                                      local_problem_hook)
+        if local is not None:
+            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
+        if failure is not None:
+            status, message = failure
+            break
+        U_flat = U.ravel()
+        U_flat[model.free_dofs] += dU_free
+        U = U_flat.reshape(-1, 3)
+        r = np.array(local.r, dtype=float)
+    cached = tangent.with_workspace(workspace) if opts.reuse_tangent and tangent is not None else None
+    return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
+                       cached, timings)
+
+
+def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: int):
+    """Internal force (n_dofs,) at ``U``, the stiffness if a tangent is to be
+    built (else None), and the smallest ``det F`` at the Gauss points."""
+    geometry, elements, material = model.geometry, model.mesh.elements, model.material
+    if need_tangent and model.options.reuse_tangent and it == 0:
+        # A tangent kept for many iterations is best taken at the converged
+        # start of the step, an equilibrium state: a tangent at an iterate
+        # can be indefinite (see fe_contact.tangent.refreshed_tangent).
+        _, K, _ = internal_force_and_tangent(geometry, elements, state.displacement, material, model.pattern)
+        f_int, min_det = internal_force(geometry, elements, U, material)
+        return f_int, K, min_det
+    if need_tangent:
+        return internal_force_and_tangent(geometry, elements, U, material, model.pattern)
+    f_int, min_det = internal_force(geometry, elements, U, material)
+    return f_int, None, min_det
+
+
+def _breakdown(f_int: np.ndarray, min_det: float, it: int) -> tuple[Status, str] | None:
+    """Status and message if the iterate is not a configuration to go on from."""
+    if not np.all(np.isfinite(f_int)) or not math.isfinite(min_det):
+        return Status.NOT_FINITE, f"non-finite internal force at Newton iteration {it}"
+    if min_det <= 0:
+        return Status.ELEMENT_INVERTED, f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}"
+    return None
+
+
+def _contact_forces(model: Model, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World force of each contact node (n_lower, 3) and as a force vector (n_dofs,)."""
+    contact_world = r @ model.frame
+    f_contact = np.zeros(model.mesh.n_dofs)
+    f_contact[model.lower_dofs.ravel()] = contact_world.ravel()
+    return contact_world, f_contact
+
+
+def _out_of_balance(model: Model, f_int, f_contact, contact_world, scale0: float) -> tuple[np.ndarray, float]:
+    """Out-of-balance force of the free dofs ``R`` (n_free,), N, and its norm
+    relative to the step's force scale."""
+    R = (f_int - f_contact)[model.free_dofs]
+    scale = max(np.linalg.norm(f_int[model.upper_dofs]), np.linalg.norm(contact_world), scale0)
+    rel_res = float(np.linalg.norm(R) / scale) if scale > 0 else float(np.linalg.norm(R))
+    return R, rel_res
+
+
+def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: np.ndarray) -> float:
+    """Norm of the out-of-balance force of the step's command applied to the
+    upper face alone (the rest of the block left at ``state``), with the
+    start's contact forces ``f_contact``.
+
+    A force scale for the step's residual that stays meaningful when the
+    block is lifted off and all forces vanish.  The predictor cannot
+    give it: a block moved in the plane in the air is in equilibrium to rounding.
+    """
+    upper = model.mesh.upper
+    U_upper_only = np.array(state.displacement, dtype=float)
+    U_upper_only[upper] = U[upper]
+    f_int, _ = internal_force(model.geometry, model.mesh.elements, U_upper_only, model.material)
+    return float(np.linalg.norm((f_int - f_contact)[model.free_dofs]))
+
+
+def _contact_correction(model: Model, state: State, tangent: Tangent, workspace, U, R, r, it: int,
+                        timings: dict, local_problem_hook):
+    """Contact solve and displacement update of one Newton iteration.
+
+    Returns the :class:`~fe_contact.local_solver.LocalSolution` (None if not
+    solved), the update of the free dofs (n_free,), m, and None, or a failure
+    ``(status, message)`` instead of the update.
+    """
+    T, lower, opts = model.frame, model.mesh.lower, model.options
+    with _timed(timings, "solve"):
+        dw0, finish_solve = tangent.solve_with_contact(-R)
+        w = U[lower] - state.displacement[lower]
+        w[:, 2] = model.mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
+        q_scaled = (w + dw0) @ T.T / tangent.w_mean - (tangent.W_scaled @ r.ravel()).reshape(-1, 3)
+    if not np.all(np.isfinite(q_scaled)):
+        return None, None, (Status.NOT_FINITE, f"non-finite contact problem at Newton iteration {it}: "
+                                               "the solve with the tangent broke down")
+    with _timed(timings, "local"):
+        local = solve_local(
+            tangent.W_scaled, q_scaled, model.friction.mu_x, model.friction.mu_y,
+            method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
+            assume_spd=True,  # K_ff is SPD with the upper face prescribed
+            workspace=workspace,
+        )
+    if local_problem_hook is not None:
+        local_problem_hook(tangent.W_scaled, q_scaled, local)
+    if not local.converged:
+        return local, None, (Status.CONTACT_NOT_CONVERGED,
+                             f"contact ({opts.local_method}) did not converge at Newton iteration {it}: "
+                             f"residual {local.residual:.3g} after {local.iterations} iterations")
+    with _timed(timings, "solve"):
+        dU_free = finish_solve((local.r - r) @ T)
+    if not np.all(np.isfinite(dU_free)):
+        return local, None, (Status.NOT_FINITE, f"non-finite displacement update at Newton iteration {it}")
+    return local, dU_free, None
