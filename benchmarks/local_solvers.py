@@ -49,7 +49,7 @@ def fe_step2_problem(elements) -> tuple[dict, dict]:
     """``(W, q, mu_x, mu_y, r0, tol)`` of the first ``solve_local`` call of step 2, and facts.
 
     Step 1 (compression 0.1 mm) is solved with the Newton local method; then
-    ``fe_contact.step.solve_local`` is wrapped to record its arguments.
+    ``fe_contact.newton.solve_local`` is wrapped to record its arguments.
     """
     scenario = load_scenario(ROOT / "scenarios" / "paper_case3.toml")
     model = scenario.model(elements=tuple(elements) if elements else None)
@@ -57,7 +57,7 @@ def fe_step2_problem(elements) -> tuple[dict, dict]:
     state, rep = step(model, initial_state(model), scenario.commands[0])
     if not rep.converged:
         raise RuntimeError(f"step 1 did not converge: {rep.message}")
-    module = sys.modules["fe_contact.step"]
+    module = sys.modules["fe_contact.newton"]
     original = module.solve_local
     calls = []
 
