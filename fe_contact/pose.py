@@ -74,3 +74,9 @@ def twist_angle(upper: np.ndarray, lower: np.ndarray, scale: float) -> float:
     if np.linalg.norm(a) <= tiny or np.linalg.norm(b) <= tiny:
         return 0.0
     return float(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b))
+
+
+def wrap_angle(angle):
+    """``angle`` (rad, scalar or array) wrapped to ``[-pi, pi)``."""
+    wrapped = (np.asarray(angle, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+    return float(wrapped) if wrapped.ndim == 0 else wrapped

@@ -18,12 +18,13 @@ from typing import Sequence
 import numpy as np
 
 from fe_contact import Command, Model, State, StepReport, initial_state
+from fe_contact.pose import wrap_angle
 
 from ..config.commands import command_to_dict
 from ..errors import InputError
 from ..run.driver import drive
 from ..run.summary import RunStatus, StepSummary
-from .frames import matrix_yaw, quat_mul, quat_z, rz, wrap_angle
+from .frames import matrix_yaw, quat_mul, quat_z, rz
 from .mjmodel import find_object, frame_of, mocap_index, mujoco_module
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory

@@ -40,7 +40,3 @@ def matrix_yaw(R: np.ndarray) -> float:
     world x-y plane, ``atan2(R_yx, R_xx)``."""
     return float(math.atan2(R[1, 0], R[0, 0]))
 
-
-def wrap_angle(angle: float) -> float:
-    """``angle`` (rad) wrapped into [-pi, pi)."""
-    return float((angle + math.pi) % (2 * math.pi) - math.pi)

@@ -14,9 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from fe_contact import Command
-from fe_contact.pose import ZERO_MOTION
+from fe_contact.pose import ZERO_MOTION, wrap_angle
 
-from .frames import wrap_angle
 from .mjmodel import find_object, mocap_index, mujoco_module
 from .records import ComparisonStep
 from .scene import MjcfScene, block_geom_pose

@@ -7,12 +7,9 @@ import math
 
 import numpy as np
 
+from fe_contact.pose import wrap_angle
+
 from ..config.plan import PlanSpec
-
-
-def wrap_angle(angle):
-    """``angle`` (rad, scalar or array) wrapped to ``[-pi, pi)``."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
 def naive_commands(spec: PlanSpec) -> np.ndarray:
