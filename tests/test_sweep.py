@@ -223,6 +223,8 @@ def test_thread_variables_are_set_in_the_workers_only(tmp_path, monkeypatch):
     import os
     from concurrent.futures import ProcessPoolExecutor
 
+    from threadpoolctl import threadpool_info
+
     from pushplan.studies.sweep_run import THREAD_VARIABLES, single_threaded, worker_environment
 
     for var in THREAD_VARIABLES:
@@ -231,6 +233,8 @@ def test_thread_variables_are_set_in_the_workers_only(tmp_path, monkeypatch):
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=single_threaded,
                              initargs=(worker_environment(),)) as pool:
         assert [pool.submit(os.getenv, var).result() for var in THREAD_VARIABLES] == ["1"] * len(THREAD_VARIABLES)
+        blas = [p for p in pool.submit(threadpool_info).result() if p["user_api"] == "blas"]
+        assert blas and all(p["num_threads"] == 1 for p in blas)  # also the BLAS loaded before the initializer
     path = tmp_path / "one.toml"
     path.write_text(TINY_SWEEP.replace(f'"load[0].dz" = [-0.1e-3, {BAD_PRESS}]', '"load[0].dz" = [-0.1e-3]'))
     result = run_sweep(load_sweep(path), tmp_path / "out")

@@ -51,9 +51,10 @@ CASE_FILE = "case.json"
 FINISHED = ("completed", "failed")
 """Statuses a rerun skips: a solver failure is a deterministic outcome, an exception may not be."""
 SCHEDULER_TIMEOUT_S = 10
-THREAD_VARIABLES = {"OPENBLAS_NUM_THREADS": "openblas", "OMP_NUM_THREADS": "openmp", "MKL_NUM_THREADS": "mkl",
+THREAD_VARIABLES = {"OPENBLAS_NUM_THREADS": "blas", "OMP_NUM_THREADS": "openmp", "MKL_NUM_THREADS": None,
                     "FE_CONTACT_DENSE_THREADS": None}
-"""Environment variables set to 1 in the case processes -> the threadpoolctl library they limit."""
+"""Environment variables set to 1 in the case processes -> the threadpoolctl ``user_api``
+also limited to one thread there (libraries loaded before the variable was set)."""
 
 
 @dataclass
