@@ -213,7 +213,11 @@ def test_case_runners_name_importable_functions():
     from pushplan.config.sweep import RUNNERS
     from pushplan.studies.sweep_run import _runner
 
+    from pushplan.cli import sweep as sweep_cli
+    from pushplan.config.sweep import EXECUTORS
+
     assert tuple(CASE_RUNNERS) == RUNNERS
+    assert sweep_cli.EXECUTORS == EXECUTORS  # repeated there for a cheap --help
     assert all(callable(_runner(name)) for name in RUNNERS)
 
 
