@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -22,8 +21,7 @@ from fe_contact import SolverOptions, initial_state, step
 from fe_contact.elasticity import internal_force_and_tangent
 from fe_contact.cholesky import factorise
 from pushplan.config import load_scenario
-
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+from pushplan.resources import scenario_path
 
 
 def reference_cost(model, repeats: int = 3) -> float:
@@ -47,7 +45,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--no-reuse", action="store_true", help="full Newton (tangent every iteration)")
     args = parser.parse_args(argv)
 
-    scenario = load_scenario(SCENARIOS / f"paper_case{args.case}.toml")
+    scenario = load_scenario(scenario_path(f"paper_case{args.case}.toml"))
     options = SolverOptions(local_method=args.method, reuse_tangent=not args.no_reuse)
     scenario = dataclasses.replace(scenario, solver=options)
     model = scenario.model(elements=tuple(args.elements) if args.elements else None)

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from pushplan import cli
-from pushplan.studies import paper
+from pushplan.cli import paper as paper_cli
+from pushplan.studies import paper_figures
 
 ELEMENTS = (10, 10, 4)  # even nx, ny: node lines on the axes and diagonals through the centre
 QUADRATURE = 2
@@ -46,12 +47,10 @@ pytestmark = pytest.mark.xdist_group("paper")  # one worker runs the module fixt
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
     docs = out / "docs_figures"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(paper, "DOCS_FIGURES", docs)
-        code = cli.main([
-            "paper", "--out", str(out), "--elements", *map(str, ELEMENTS), "--quadrature", str(QUADRATURE),
-            "--local-method", "newton", "--docs", "--quiet",
-        ])
+    code = cli.main([
+        "paper", "--out", str(out), "--elements", *map(str, ELEMENTS), "--quadrature", str(QUADRATURE),
+        "--local-method", "newton", "--docs", str(docs), "--quiet",
+    ])
     fields = {}
     for name in CASES:
         with np.load(out / name / "fields.npz") as f:
@@ -241,7 +240,7 @@ def test_claim6_figures_are_generated_and_not_blank(run):
     from matplotlib.image import imread
 
     names = sorted(p.name for p in (run.out / "figures").glob("*.png"))
-    expected = sorted([f"{n}.png" for n in paper.FIGURES] + ["fig10_deformed.png"])
+    expected = sorted([f"{n}.png" for n in paper_figures.FIGURES] + ["fig10_deformed.png"])
     assert names == expected
     for name in names:
         img = imread(run.out / "figures" / name)[..., :3]
@@ -277,3 +276,9 @@ def test_bad_override_is_rejected_before_writing(tmp_path, capsys):
     assert cli.main(["paper", "--out", str(out), "--elements", "0", "4", "4"]) == cli.EXIT_BAD_INPUT
     assert "elements" in capsys.readouterr().err
     assert not Path(out).exists()
+
+
+def test_cli_local_methods_are_the_solver_ones():
+    from fe_contact.model import LOCAL_METHODS
+
+    assert paper_cli.LOCAL_METHODS == LOCAL_METHODS

@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 
 from pushplan.cli import EXIT_SOLVER_FAILURE, main
-from pushplan.studies.sweep import apply_override, load_sweep, run_sweep
+from pushplan.config.sweep import apply_override, load_sweep, parse_sweep
+from pushplan.resources import scenario_path
+from pushplan.studies.sweep_run import CASE_RUNNERS, run_sweep
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 SAME_TABLE_RTOL = 1e-9  # pool vs Dask: same code, same inputs; only BLAS threading could move last bits
@@ -198,3 +200,47 @@ def test_plan_sweep_tabulates_verified_plan_errors(tmp_path):
         assert plan_error <= 6.0e-6 < naive_error, row
         assert naive_error > 0.01 * travel  # the anisotropy makes the straight push miss
     assert all((Path(p).parent / "plan.json").is_file() for p in (out / "cases").rglob("summary.json"))
+
+
+def test_sweep_file_round_trips_through_to_dict():
+    sweep = load_sweep(scenario_path("sweep_twist.toml"))
+    assert len(sweep.cases) == 90
+    assert sweep.to_dict()["base"] == "paper_case3.toml"
+    assert parse_sweep(sweep.to_dict(), sweep.path) == sweep
+
+
+def test_case_runners_name_importable_functions():
+    from pushplan.config.sweep import RUNNERS
+    from pushplan.studies.sweep_run import _runner
+
+    from pushplan.cli import sweep as sweep_cli
+    from pushplan.config.sweep import EXECUTORS
+
+    assert tuple(CASE_RUNNERS) == RUNNERS
+    assert sweep_cli.EXECUTORS == EXECUTORS  # repeated there for a cheap --help
+    assert all(callable(_runner(name)) for name in RUNNERS)
+
+
+def test_thread_variables_are_set_in_the_workers_only(tmp_path, monkeypatch):
+    """The case processes run single-threaded BLAS; the caller's environment is not touched."""
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from threadpoolctl import threadpool_info
+
+    from pushplan.studies.sweep_run import THREAD_VARIABLES, single_threaded, worker_environment
+
+    for var in THREAD_VARIABLES:
+        monkeypatch.delenv(var, raising=False)
+    before = dict(os.environ)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=single_threaded,
+                             initargs=(worker_environment(),)) as pool:
+        assert [pool.submit(os.getenv, var).result() for var in THREAD_VARIABLES] == ["1"] * len(THREAD_VARIABLES)
+        blas = [p for p in pool.submit(threadpool_info).result() if p["user_api"] == "blas"]
+        assert blas and all(p["num_threads"] == 1 for p in blas)  # also the BLAS loaded before the initializer
+    path = tmp_path / "one.toml"
+    path.write_text(TINY_SWEEP.replace(f'"load[0].dz" = [-0.1e-3, {BAD_PRESS}]', '"load[0].dz" = [-0.1e-3]'))
+    result = run_sweep(load_sweep(path), tmp_path / "out")
+    assert result.all_completed and len(result.rows) == 2
+    assert dict(os.environ) == before

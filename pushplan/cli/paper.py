@@ -1,3 +1,54 @@
-"""Transitional: registers the commands of pushplan.studies.paper."""
+"""``pushplan paper --out DIR``: reproduce sect. 9 of the paper (figures 6-10, report, VTU)."""
 
-from ..studies.paper import register  # noqa: F401
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..errors import EXIT_SOLVER_FAILURE
+
+LOCAL_METHODS = ("uzawa", "newton")
+"""``fe_contact.model.LOCAL_METHODS``, repeated so that ``--help`` does not import fe_contact."""
+
+
+def print_report(report, out) -> None:
+    """One line per case, the claims (and their failing checks), the report path."""
+    for case in report.cases:
+        if case.steps:
+            s = case.steps[-1]
+            print(f"{case.name}: {case.run.summary.status.value}, {case.run.summary.elapsed_s:.1f} s, "
+                  f"max slip {s.summary.max_slip * 1e3:.4f} mm, twist {s.summary.twist_deg:.3f}°, "
+                  f"lower-face direction {s.lower_direction_deg:.2f}°")
+    for claim in report.claims or ():
+        print(f"claim {claim.key}: {'holds' if claim.holds else 'does NOT fully hold'}")
+        for check in claim.failed_checks:
+            print(f"    not: {check.text}")
+    print(f"wrote {Path(out) / 'report.md'} ({report.wall_time_s:.1f} s)")
+
+
+def cmd_paper(args) -> int:
+    """Exit 0, or 3 when a case's solver fails (the report keeps the finished steps)."""
+    from ..studies.paper_run import run_paper
+
+    report = run_paper(args.out, elements=args.elements, quadrature=args.quadrature,
+                       local_method=args.local_method, docs_dir=args.docs, progress=not args.quiet)
+    print_report(report, args.out)
+    if not report.completed:
+        print(f"pushplan: solver failure in {', '.join(report.failed_cases)}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add the ``paper`` subcommand."""
+    p = subparsers.add_parser("paper", help="reproduce the paper's sect. 9 (figures 6-10, report, VTU)")
+    p.add_argument("--out", default="out/paper", help="output folder (default: out/paper)")
+    p.add_argument("--elements", nargs=3, type=int, metavar=("NX", "NY", "NZ"),
+                   help="mesh override for coarse runs (default: the paper's 20 20 5)")
+    p.add_argument("--quadrature", type=int, choices=(2, 3), help="Gauss points per direction (default: 3)")
+    p.add_argument("--local-method", choices=LOCAL_METHODS,
+                   help="local contact solver (default: the scenarios'; the paper's is uzawa)")
+    p.add_argument("--docs", metavar="DIR",
+                   help="also copy the PNGs into DIR (the README's figures: --docs docs/figures)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_paper)

@@ -1,3 +1,54 @@
-"""Transitional: registers the commands of pushplan.studies.sweep."""
+"""``pushplan sweep SWEEP --out DIR``: run a scenario over parameter grids (local
+process pool or Dask) and tabulate the cases."""
 
-from ..studies.sweep import register  # noqa: F401
+from __future__ import annotations
+
+import time
+
+from ..errors import EXIT_SOLVER_FAILURE
+
+EXECUTORS = ("process", "dask")
+"""``pushplan.config.sweep.EXECUTORS``, repeated so that ``--help`` stays cheap."""
+
+
+def print_case(done: int, total: int, row: dict) -> None:
+    """The progress line of a case that ran."""
+    detail = row["error"] or (
+        f"steady twist {row['steady_twist_deg']:.3f} deg, deviation {row['direction_deviation_deg']:.3f} deg"
+        if row["steady_twist_deg"] is not None and row["direction_deviation_deg"] is not None else "")
+    print(f"[{done:>{len(str(total))}}/{total}] {row['case']}: {row['status']}  {detail}", flush=True)
+
+
+def cmd_sweep(args) -> int:
+    """Exit 0 when every case completed, 3 when one failed or raised (the table lists it)."""
+    from ..config.sweep import load_sweep
+    from ..studies.sweep_run import run_sweep
+
+    sweep = load_sweep(args.sweep)
+    started = time.perf_counter()
+    result = run_sweep(
+        sweep, args.out, executor=args.executor, scheduler=args.scheduler, workers=args.workers,
+        figure=args.figure, rerun_failed=args.rerun_failed, progress=None if args.quiet else print_case,
+    )
+    counts = {s: sum(r["status"] == s for r in result.rows) for s in ("completed", "failed", "error")}
+    print(f"{len(result.rows)} cases ({len(result.ran)} run, {len(result.skipped)} already finished): "
+          f"{counts['completed']} completed, {counts['failed']} failed, {counts['error']} errors "
+          f"in {time.perf_counter() - started:.1f} s")
+    for paths in result.outputs.values():
+        for p in paths:
+            print(f"wrote {p}")
+    return 0 if result.all_completed else EXIT_SOLVER_FAILURE
+
+
+def register(subparsers) -> None:
+    """Add the ``sweep`` subcommand."""
+    p = subparsers.add_parser("sweep", help="run a scenario over parameter grids (local process pool or Dask)")
+    p.add_argument("sweep", help="sweep TOML file (see pushplan.config.sweep)")
+    p.add_argument("--out", required=True, help="output folder (results.csv, cases/, heat map); reruns resume")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address (implies --executor dask)")
+    p.add_argument("--executor", choices=EXECUTORS, help="override the sweep file's executor")
+    p.add_argument("--workers", type=int, help="local pool / LocalCluster size (default: the file's, or CPU count)")
+    p.add_argument("--figure", help="also write the heat map here, e.g. docs/figures/sweep_twist.png")
+    p.add_argument("--rerun-failed", action="store_true", help="also rerun cases that ended in a solver failure")
+    p.add_argument("--quiet", action="store_true", help="no per-case lines")
+    p.set_defaults(func=cmd_sweep)
