@@ -10,6 +10,7 @@ import json
 import math
 import os
 import secrets
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -38,17 +39,24 @@ def commit_temporary(tmp, path) -> Path:
     return Path(path)
 
 
-def atomic_write_bytes(path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; returns the path."""
-    path = Path(path)
+@contextmanager
+def atomic_path(path):
+    """A temporary sibling of ``path`` to write (for writers that take a path only):
+    moved into place when the block ends, removed if it raises."""
     tmp = reserve_temporary(path)
     try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-        return commit_temporary(tmp, path)
+        yield tmp
+        commit_temporary(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
 
 
 def _json_default(obj):

@@ -4,30 +4,24 @@ written atomically."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from fe_contact import Model, StepReport
 
-from .atomic import atomic_write_bytes, prepare_output_dir, reserve_temporary
+from .atomic import atomic_path, atomic_write_bytes, prepare_output_dir
 
 SERIES_FILE = "block.pvd"
 
 
 def _write_mesh(path: Path, mesh) -> Path:
     """``meshio.write`` to ``path`` atomically (meshio writes to a path only: the
-    reserved temporary sibling, then :func:`os.replace`)."""
+    reserved temporary sibling, then moved into place)."""
     import meshio
 
-    tmp = reserve_temporary(path)
-    try:
+    with atomic_path(path) as tmp:
         meshio.write(tmp, mesh, file_format="vtu")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 
