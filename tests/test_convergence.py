@@ -11,7 +11,7 @@ import pytest
 
 from pushplan.cli import EXIT_BAD_INPUT, main
 from pushplan.config import load_scenario
-from pushplan.studies.convergence import study
+from pushplan.studies.convergence import QUANTITIES, study
 from pushplan.studies.richardson import extrapolate
 
 EXACT = 1e-10  # issue: p and a recovered to 1e-10
@@ -70,3 +70,11 @@ def test_cli_writes_the_study_and_rejects_bad_levels(tmp_path, capsys):
     assert set(doc["extrapolated"]) == {"twist_deg", "lower_direction_deg", "lower_x", "lower_y", "max_slip",
                                         "normal_force", "tangential_force", "dissipation"}
     assert (tmp_path / "out" / "convergence.png").stat().st_size > 1000
+    # the same levels as cases of a sweep on a local pool give the same numbers
+    assert main(["convergence", str(tmp_path / "s.toml"), "--levels", "3", "--out", str(tmp_path / "pool"),
+                 "--workers", "2", "--quiet"]) == 0
+    pooled = json.loads((tmp_path / "pool" / "convergence.json").read_text())
+    for a, b in zip(pooled["levels"], doc["levels"]):  # equal up to the BLAS threads' rounding
+        np.testing.assert_allclose([a["values"][k] for k in QUANTITIES], [b["values"][k] for k in QUANTITIES],
+                                   rtol=1e-12, atol=1e-15)
+    assert len(list((tmp_path / "pool" / "levels" / "cases").iterdir())) == 3

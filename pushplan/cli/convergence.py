@@ -36,15 +36,22 @@ def _print(result) -> None:
 
 
 def cmd_convergence(args) -> int:
-    from ..config import load_scenario
+    from ..config import load_scenario, parse_scenario
     from ..outputs import prepare_output_dir
-    from ..studies.convergence import study, write
+    from ..studies.convergence import study, sweep_levels, write
 
     scenario = load_scenario(args.scenario)
+    if args.elements is not None:
+        scenario = parse_scenario({**scenario.to_dict(), "block": {**scenario.to_dict()["block"],
+                                                                   "elements": args.elements}})
     _check(args, scenario)
     out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    result = study(scenario, args.levels, args.ratio, log=log)
+    run_levels = None
+    if args.workers is not None or args.executor is not None or args.scheduler is not None:
+        run_levels = sweep_levels(args.scenario, out, workers=args.workers, executor=args.executor,
+                                  scheduler=args.scheduler)
+    result = study(scenario, args.levels, args.ratio, run_levels=run_levels, log=log)
     paths = write(result, out)
     _print(result)
     print("wrote " + ", ".join(str(p) for p in paths))
@@ -62,5 +69,11 @@ def register(subparsers) -> None:
     p.add_argument("--levels", type=int, required=True, help="number of meshes (>= 3)")
     p.add_argument("--ratio", type=float, default=2.0, help="refinement ratio between levels (default 2)")
     p.add_argument("--out", required=True, help="output folder (convergence.json, convergence.png)")
+    p.add_argument("--elements", nargs=3, type=int, metavar=("NX", "NY", "NZ"),
+                   help="coarsest mesh (default: the scenario's [block] elements)")
+    p.add_argument("--workers", type=int, help="run the levels in parallel on a local pool of this size "
+                   "(the sweep machinery; levels land in OUT/levels/)")
+    p.add_argument("--executor", choices=("process", "dask"), help="sweep executor for the levels")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler for the levels")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_convergence)

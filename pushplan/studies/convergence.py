@@ -24,7 +24,8 @@ import numpy as np
 
 from ..config.scenario import Scenario
 from ..outputs.atomic import atomic_write_bytes, atomic_write_json
-from ..run import Run, simulate
+from ..config.files import read_json
+from ..run import RunSummary, simulate
 from .richardson import Extrapolation, extrapolate
 
 QUANTITIES = {  # name: (description, unit)
@@ -77,9 +78,9 @@ def level_elements(elements, ratio: float, k: int) -> tuple[int, int, int]:
     return tuple(max(1, round(n * ratio**k)) for n in elements)
 
 
-def quantities(run: Run) -> dict:
+def quantities(summary: RunSummary) -> dict:
     """The quantities of interest after the run's last step (SI units, degrees)."""
-    last = run.summary.steps[-1]
+    last = summary.steps[-1]
     lx, ly = last.lower_centroid[:2]
     return {
         "twist_deg": last.twist_deg,
@@ -89,18 +90,49 @@ def quantities(run: Run) -> dict:
         "max_slip": last.max_slip,
         "normal_force": last.normal_force,
         "tangential_force": math.hypot(*last.tangential_force),
-        "dissipation": sum(s.dissipation for s in run.summary.steps),
+        "dissipation": sum(s.dissipation for s in summary.steps),
     }
 
 
+def _level(scenario: Scenario, elements, summary: RunSummary, wall_time: float) -> Level:
+    nx, ny, nz = elements
+    h = (math.prod(scenario.size) / math.prod(elements)) ** (1.0 / 3.0)
+    values = quantities(summary) if summary.completed else None
+    return Level(tuple(elements), 3 * (nx + 1) * (ny + 1) * (nz + 1), h, wall_time, summary.status.value, values)
+
+
 def run_level(scenario: Scenario, elements) -> Level:
-    """The scenario's load steps on one mesh."""
+    """The scenario's load steps on one mesh, in this process."""
     t0 = time.perf_counter()
     run = simulate(replace(scenario, elements=tuple(elements)), recording=False)
-    h = (math.prod(scenario.size) / math.prod(elements)) ** (1.0 / 3.0)
-    values = quantities(run) if run.completed else None
-    return Level(tuple(elements), 3 * run.model.mesh.n_nodes, h, time.perf_counter() - t0,
-                 run.summary.status.value, values)
+    return _level(scenario, elements, run.summary, time.perf_counter() - t0)
+
+
+def sweep_levels(scenario_file, out, **options):
+    """A ``run_levels`` for :func:`study` that runs the meshes as the cases of a sweep
+    over ``block.elements`` (:func:`pushplan.studies.sweep_run.run_sweep`: a local
+    pool or Dask, resumable), into ``out/levels``; ``options`` go to ``run_sweep``
+    (``workers``, ``executor``, ``scheduler``)."""
+    from pathlib import Path
+
+    from ..config.sweep import parse_sweep
+    from .sweep_run import run_sweep
+
+    scenario_file = Path(scenario_file).resolve()
+
+    def run_levels(scenario: Scenario, meshes) -> list[Level]:
+        data = {"name": f"{scenario.name}-convergence", "base": scenario_file.name, "run": "simulate",
+                "grid": {"block.elements": [list(m) for m in meshes]}}
+        sweep = parse_sweep(data, scenario_file)
+        run_sweep(sweep, out / "levels", **options)
+        levels = []
+        for case, elements in zip(sweep.cases, meshes):
+            summary = RunSummary.from_dict(read_json(out / "levels" / "cases" / case.case_id / "summary.json",
+                                                     "level summary"))
+            levels.append(_level(scenario, elements, summary, summary.elapsed_s))
+        return levels
+
+    return run_levels
 
 
 def study(scenario: Scenario, n_levels: int, ratio: float = 2.0, run_levels=None, log=None) -> ConvergenceStudy:
