@@ -67,7 +67,7 @@ def test_cli_writes_the_study_and_rejects_bad_levels(tmp_path, capsys):
                  "--quiet"]) == 0
     doc = json.loads((tmp_path / "out" / "convergence.json").read_text())
     assert [lv["elements"] for lv in doc["levels"]] == [[2, 2, 1], [4, 4, 2], [8, 8, 4]]
-    assert set(doc["extrapolated"]) == {"twist_deg", "lower_direction_deg", "lower_x", "lower_y", "max_slip",
+    assert set(doc["extrapolated"]) == {"twist_deg", "lower_direction_deg", "lower_x", "lower_y", "lower_yaw_deg", "max_slip",
                                         "normal_force", "tangential_force", "dissipation"}
     assert (tmp_path / "out" / "convergence.png").stat().st_size > 1000
     # the same levels as cases of a sweep on a local pool give the same numbers
@@ -78,3 +78,19 @@ def test_cli_writes_the_study_and_rejects_bad_levels(tmp_path, capsys):
         np.testing.assert_allclose([a["values"][k] for k in QUANTITIES], [b["values"][k] for k in QUANTITIES],
                                    rtol=1e-12, atol=1e-15)
     assert len(list((tmp_path / "pool" / "levels" / "cases").iterdir())) == 3
+
+
+def test_plan_states_the_verification_mesh_error(tmp_path):
+    """``plan --verification-error``: the plan's commands on the verification mesh and two
+    coarser ones; the finest level is the FE-verified pose, and its GCI is stated."""
+    out = tmp_path / "plan"
+    assert main(["plan", str(SCENARIOS / "plan_steel_case3.toml"), "--out", str(out), "--verification-error",
+                 "--no-recording", "--quiet"]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    ve = doc["verification_error"]
+    assert [lv["elements"] for lv in ve["levels"]] == [[5, 5, 2], [8, 8, 3], doc["scenario"]["block"]["elements"]]
+    verified = doc["poses"]["verified"][-1]
+    finest = ve["levels"][-1]["values"]
+    np.testing.assert_allclose([finest["lower_x"], finest["lower_y"]], verified[:2], rtol=1e-9)
+    gx, gy = ve["extrapolated"]["lower_x"]["gci_abs"], ve["extrapolated"]["lower_y"]["gci_abs"]
+    assert ve["position_gci"] == pytest.approx(math.hypot(gx, gy)) and 0 < ve["position_gci"] < 1e-4

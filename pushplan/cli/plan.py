@@ -20,6 +20,22 @@ def _describe(e: dict) -> str:
     return f"{e['position'] * 1e3:.5f} mm{rel}{yaw}"
 
 
+def _verification_error(scenario, doc: dict, ratio: float) -> dict:
+    """The GCI of the verification mesh for the plan's commands (``plan.json``'s
+    ``verification_error``): lower-face x, y, yaw on that mesh and two coarser ones."""
+    import math
+
+    from ..config.commands import commands_from_list
+    from ..studies.convergence import verification_error
+
+    result = verification_error(scenario, commands_from_list(doc["commands"]), ratio)
+    pose = {k: result.extrapolated[k].to_dict() for k in ("lower_x", "lower_y", "lower_yaw_deg")
+            } if result.extrapolated else {}
+    gx, gy = (pose.get(k, {}).get("gci_abs") for k in ("lower_x", "lower_y"))
+    return {"ratio": ratio, "levels": [lv.to_dict() for lv in result.levels], "extrapolated": pose,
+            "position_gci": math.hypot(gx, gy) if gx is not None and gy is not None else None}
+
+
 def cmd_plan(args) -> int:
     from ..config import load_scenario
     from ..config.plan import parse_plan
@@ -36,6 +52,8 @@ def cmd_plan(args) -> int:
 
     result = plan(scenario, spec, log=log)
     doc = plan_document(result)
+    if args.verification_error:
+        doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
     atomic_write_json(out / "plan.json", doc)
     wrote = [out / "plan.json"]
     if not args.no_recording:
@@ -44,6 +62,11 @@ def cmd_plan(args) -> int:
     print(f"{scenario.name}: {result.status} ({result.message})")
     print(f"  planned final error (FE, verification mesh): {_describe(doc['final_error'])}")
     print(f"  naive final error   (FE, verification mesh): {_describe(doc['naive']['final_error'])}")
+    if args.verification_error:
+        ve = doc["verification_error"]
+        gci = "no monotone sequence" if ve["position_gci"] is None else f"{ve['position_gci'] * 1e3:.5f} mm"
+        print(f"  verification mesh error (GCI of {list(scenario.elements)} from "
+              f"{[lv['elements'] for lv in ve['levels']]}): position {gci}")
     print(f"  FE rollouts: planning {result.rollouts['planning']}, verification {result.rollouts['verification']}; "
           f"plan time {result.timings['total']:.2f} s")
     print("  wrote " + ", ".join(str(p) for p in wrote))
@@ -58,5 +81,10 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file with a [plan] table")
     p.add_argument("--out", required=True, help="output folder (plan.json, recording.rrd)")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
+    p.add_argument("--verification-error", action="store_true",
+                   help="also run the plan on two coarser meshes and state the GCI of the verification mesh "
+                   "(plan.json: verification_error)")
+    p.add_argument("--verification-ratio", type=float, default=1.5,
+                   help="coarsening ratio of those meshes (default 1.5)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_plan)

@@ -25,6 +25,7 @@ import numpy as np
 from ..config.scenario import Scenario
 from ..outputs.atomic import atomic_write_bytes, atomic_write_json
 from ..config.files import read_json
+from ..errors import InputError
 from ..run import RunSummary, simulate
 from .richardson import Extrapolation, extrapolate
 
@@ -33,6 +34,7 @@ QUANTITIES = {  # name: (description, unit)
     "lower_direction_deg": ("direction of the lower-face centroid displacement", "deg"),
     "lower_x": ("lower-face centroid displacement, x", "m"),
     "lower_y": ("lower-face centroid displacement, y", "m"),
+    "lower_yaw_deg": ("best-fit rotation of the lower face about the vertical", "deg"),
     "max_slip": ("largest accumulated slip of a contact node", "m"),
     "normal_force": ("total normal contact force", "N"),
     "tangential_force": ("magnitude of the total friction force", "N"),
@@ -87,6 +89,7 @@ def quantities(summary: RunSummary) -> dict:
         "lower_direction_deg": math.degrees(math.atan2(ly, lx)),
         "lower_x": lx,
         "lower_y": ly,
+        "lower_yaw_deg": last.lower_yaw_deg,
         "max_slip": last.max_slip,
         "normal_force": last.normal_force,
         "tangential_force": math.hypot(*last.tangential_force),
@@ -135,13 +138,17 @@ def sweep_levels(scenario_file, out, **options):
     return run_levels
 
 
-def study(scenario: Scenario, n_levels: int, ratio: float = 2.0, run_levels=None, log=None) -> ConvergenceStudy:
+def study(scenario: Scenario, n_levels: int, ratio: float = 2.0, run_levels=None, log=None,
+          meshes=None) -> ConvergenceStudy:
     """Run ``n_levels`` meshes and extrapolate every quantity from the finest three.
 
     ``run_levels(scenario, list_of_elements) -> list[Level]`` runs the levels (default:
-    one after the other); ``log(text)`` is told of each finished level.
+    one after the other); ``log(text)`` is told of each finished level; ``meshes``
+    replaces the refinement of ``scenario.elements`` by ``ratio``.
     """
-    meshes = [level_elements(scenario.elements, ratio, k) for k in range(n_levels)]
+    if meshes is None:
+        meshes = [level_elements(scenario.elements, ratio, k) for k in range(n_levels)]
+    n_levels = len(meshes)
     if run_levels is None:
         levels = []
         for elements in meshes:
@@ -157,6 +164,17 @@ def study(scenario: Scenario, n_levels: int, ratio: float = 2.0, run_levels=None
         h = [level.h for level in good]
         extrapolated = {q: extrapolate(h, [level.values[q] for level in good]) for q in QUANTITIES}
     return ConvergenceStudy(scenario, ratio, tuple(levels), extrapolated)
+
+
+def verification_error(scenario: Scenario, commands, ratio: float = 1.5) -> ConvergenceStudy:
+    """How far a run of ``commands`` on the scenario's mesh (the planner's verification
+    mesh) may be from the converged answer: the study on that mesh and two coarser
+    ones (each direction divided by ``ratio`` and ``ratio**2``); the GCI of its finest
+    level is the verification mesh's."""
+    meshes = [level_elements(scenario.elements, ratio, k) for k in (-2, -1)] + [tuple(scenario.elements)]
+    if len({math.prod(m) for m in meshes}) < 3:
+        raise InputError(f"block.elements {list(scenario.elements)} is too coarse to coarsen twice by {ratio}")
+    return study(replace(scenario, commands=tuple(commands)), 3, ratio, meshes=meshes)
 
 
 def figure(result: ConvergenceStudy) -> bytes:
