@@ -15,6 +15,8 @@ from __future__ import annotations
 
 EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
+EXIT_UNAVAILABLE = 4
+"""What the command needs is not on this machine (``view`` without a display or viewer)."""
 
 
 class InputError(ValueError):
@@ -23,3 +25,8 @@ class InputError(ValueError):
 
 class SolverFailure(RuntimeError):
     """A solver or planner did not reach its tolerance; the message says which and why."""
+
+
+class InputWarning(UserWarning):
+    """Input that is valid but probably not what was meant (a modulus in MPa given as Pa);
+    the CLI prints it as one ``pushplan: warning:`` line and goes on."""

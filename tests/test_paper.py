@@ -9,6 +9,8 @@ Where the paper's wording does not hold literally, the test asserts what does ho
 (see the claim 1 and claim 2 docstrings) and the numbers are in the report.
 """
 
+import contextlib
+import io
 import json
 import math
 from pathlib import Path
@@ -47,15 +49,17 @@ pytestmark = pytest.mark.xdist_group("paper")  # one worker runs the module fixt
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
     docs = out / "docs_figures"
-    code = cli.main([
-        "paper", "--out", str(out), "--elements", *map(str, ELEMENTS), "--quadrature", str(QUADRATURE),
-        "--local-method", "newton", "--docs", str(docs), "--quiet",
-    ])
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = cli.main([
+            "paper", "--out", str(out), "--elements", *map(str, ELEMENTS), "--quadrature", str(QUADRATURE),
+            "--local-method", "newton", "--docs", str(docs), "--quiet",
+        ])
     fields = {}
     for name in CASES:
         with np.load(out / name / "fields.npz") as f:
             fields[name] = {k: f[k] for k in f.files}
-    return SimpleNamespace(out=out, docs=docs, code=code, fields=fields,
+    return SimpleNamespace(out=out, docs=docs, code=code, fields=fields, stdout=printed.getvalue(),
                            report=json.loads((out / "report.json").read_text()))
 
 
@@ -92,6 +96,17 @@ def test_command_runs_all_cases(run):
     for case in run.report["cases"]:
         assert case["status"] == "completed" and len(case["steps"]) == 5
     assert run.report["run"]["elements"] == list(ELEMENTS)
+
+
+def test_claims_are_printed_as_findings_not_errors(run):
+    """A claim the run does not reproduce is a finding of the study (the README discusses
+    it), printed as such: no capitals, no 'NOT'."""
+    lines = [line for line in run.stdout.splitlines() if line.startswith("claim ")]
+    assert len(lines) == len(run.report["claims"])
+    for line, (key, claim) in zip(lines, run.report["claims"].items()):
+        expected = "reproduced" if claim["holds"] else "partly reproduced; finding"
+        assert line.startswith(f"claim {key}: {expected}"), line
+    assert "NOT" not in run.stdout
 
 
 def test_claim1_stick_zone_at_centre_and_slip_grows_outward(run):

@@ -2,8 +2,9 @@
 
 Exit status: 0 success; 2 bad input (:class:`~pushplan.errors.InputError`: one line,
 nothing written); 3 solver failure (:class:`~pushplan.errors.SolverFailure` or a run
-that stopped: message on stderr, the finished part kept); anything else is a bug
-and shows its traceback (exit 1).
+that stopped: message on stderr, the finished part kept); 4 what the command needs is
+not on this machine (``view`` without a display); anything else is a bug and shows its
+traceback (exit 1).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from ..errors import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, InputError, SolverFailure
 
@@ -27,11 +29,26 @@ def build_parser() -> argparse.ArgumentParser:
         description="Pushing deformable blocks over anisotropic-friction surfaces "
         "(FE model of Feng, Hjiaj, de Saxce, Mroz 2006).",
     )
+    parser.add_argument("--version", action="version", version=f"pushplan {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pushplan")
+    except PackageNotFoundError:  # a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Input warnings (:class:`~pushplan.errors.InputWarning`) as one line on stderr."""
+    print(f"pushplan: warning: {_one_line(message)}", file=sys.stderr)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -40,8 +57,13 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from ..errors import InputWarning
+
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except InputError as exc:
         print(f"pushplan: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT

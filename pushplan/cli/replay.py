@@ -9,7 +9,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import EXIT_UNAVAILABLE, InputError
 
 RECORDING_FILE = "recording.rrd"
 COLOUR_FIELDS = ("slip", "slip_path", "pressure")  # pushplan.outputs.recording.FIELDS
@@ -75,7 +75,7 @@ def cmd_replay(args) -> int:
         report.update(reference=original.run_name, max_deviation_m=float(dev.max()), deviation_m=dev)
         k = int(dev.argmax())
         print(f"max lower-face deviation from {original.run_name}: {dev.max():.6e} m "
-              f"({dev.max() * 1e6:.4f} um, step {k + 1} of {len(dev)} compared)")
+              f"({dev.max() * 1e6:.4f} um, at compared step {k + 1}; {len(dev)} steps compared)")
     else:
         print("no original trajectory to compare with (no recording.rrd next to the plan)")
     atomic_write_json(out / "replay.json", report)
@@ -96,9 +96,9 @@ def cmd_view(args) -> int:
         print(f"opened {path} in the rerun viewer")
         return 0
     reason = "no display" if exe else "no rerun viewer on PATH"
-    print(f"{reason}: open the recording with `rerun {path}` on a machine with a display "
-          f"(pip install rerun-sdk), or drag it onto https://rerun.io/viewer")
-    return 0
+    print(f"pushplan: {reason}: open the recording with `rerun {path}` on a machine with a display "
+          f"(pip install rerun-sdk), or drag it onto https://rerun.io/viewer", file=sys.stderr)
+    return EXIT_UNAVAILABLE
 
 
 def register(subparsers) -> None:

@@ -8,13 +8,16 @@ from ..errors import EXIT_SOLVER_FAILURE, InputError
 
 
 def print_steps(steps) -> None:
-    """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, kN)."""
-    print(f"{'step':>4} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'twist':>8} {'yaw':>8} "
-          f"{'N (kN)':>9} {'max slip':>9} {'newton':>6} {'contact':>7}")
+    """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, N); the
+    twist is ``-`` while the lower face sticks (:func:`~pushplan.cli.units.twist_text`)."""
+    from .units import engineering, twist_text
+
+    print(f"{'step':>4} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'twist':>9} {'yaw':>9} "
+          f"{'normal force':>12} {'max slip':>9} {'newton':>6} {'contact':>7}")
     for s in steps:
         u, lo = s.upper_centroid, s.lower_centroid
         print(f"{s.step:>4} {u[0]*1e3:>8.4f},{u[1]*1e3:>8.4f} {lo[0]*1e3:>8.4f},{lo[1]*1e3:>8.4f} "
-              f"{s.twist_deg:>7.3f}° {s.lower_yaw_deg:>7.4f}° {s.normal_force/1e3:>9.2f} "
+              f"{twist_text(s):>9} {s.lower_yaw_deg:>8.4f}° {engineering(s.normal_force, 'N'):>12} "
               f"{s.max_slip*1e3:>7.4f}mm {s.newton_iterations:>6} {s.contact_iterations:>7}")
 
 
@@ -40,8 +43,9 @@ def cmd_simulate(args) -> int:
     fclib_dir = prepare_output_dir(args.export_fclib) if args.export_fclib else None
     run = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
                    recording=not args.no_recording, export_fclib=fclib_dir)
-    print_steps(run.summary.steps)
-    print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
+    if not args.quiet:
+        print_steps(run.summary.steps)
+        print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 
 
@@ -50,7 +54,7 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file")
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz)")
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--export-fclib", metavar="DIR",
                    help="write each step's last local contact problem to DIR/step_NNN.hdf5 (FCLIB)")

@@ -34,13 +34,14 @@ key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other comman
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh
 from fe_contact.model import LOCAL_METHODS
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from .commands import commands_to_list
 from .files import read_toml
 from .validate import Table, count, positive_number
@@ -50,6 +51,9 @@ MAX_STEPS = 100_000
 """Most load steps a scenario may expand to (``repeat`` included): a guard against typos."""
 MAX_ELEMENTS = 1_000_000
 """Most hex8 elements of a block: far beyond what fits in memory (dense flexibility matrix)."""
+PLAUSIBLE = {"material.young": (1e4, 1e12, "Pa"), "block.size": (1e-4, 10.0, "m")}
+"""Ranges outside which a value is valid but probably in the wrong unit: moduli from soft
+foams (~10 kPa) to diamond (~1 TPa); blocks from 0.1 mm to 10 m."""
 TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "solver", *EXTRA_TABLES}
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
@@ -154,6 +158,15 @@ def _commands(loads) -> tuple[Command, ...]:
     return tuple(commands)
 
 
+def _warn_implausible(key: str, values) -> None:
+    low, high, unit = PLAUSIBLE[key]
+    for v in values:
+        if not low <= v <= high:
+            warnings.warn(InputWarning(f"{key} = {v:g} {unit} is outside {low:g}-{high:g} {unit}, the range of "
+                                       f"real blocks: is it in {unit}?"), stacklevel=3)
+            return
+
+
 def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     """Validate a scenario given as a dict (the parsed TOML, or ``Scenario.to_dict()``)."""
     top = Table(data, "", TOP_KEYS)
@@ -172,7 +185,7 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         raise InputError(f"block.quadrature must be 2 or 3 (1 leaves hourglass modes), got {quadrature}")
     material = top.table("material", {"young", "poisson"}, required={"young", "poisson"})
     friction = top.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
-    return Scenario(
+    scenario = Scenario(
         name=top.string("name", name),
         description=top.string("description", ""),
         size=block.triple("size", positive_number),
@@ -187,6 +200,9 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         solver=_solver(data.get("solver", {})),
         extra={k: data[k] for k in EXTRA_TABLES if k in data},
     )
+    _warn_implausible("material.young", [scenario.young])
+    _warn_implausible("block.size", scenario.size)
+    return scenario
 
 
 def load_scenario(path) -> Scenario:
