@@ -5,8 +5,10 @@ topology and the physics of the push; replay of recorded commands."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -270,3 +272,65 @@ def test_vertex_normals_point_out_of_the_block(files):
     on = np.isclose(np.abs(x - centre), half, atol=1e-7)  # which bounding planes a vertex lies on
     face = on.sum(axis=1) == 1
     np.testing.assert_allclose(np.abs(n[face]), on[face].astype(float), atol=1e-6)
+
+
+def test_colour_scale_is_fixed_over_the_run_and_fields_are_data(files):
+    """One colour range and one arrow scale for the whole run (logged per step as data),
+    covering every step's values; the lower-face fields are in the recording as numbers
+    equal to fields.npz (issue 22)."""
+    rrd = files["run"] / "recording.rrd"
+    steps, high = column(rrd, "/run/colour_scale", "high")
+    assert steps == list(range(1, N_STEPS + 1))
+    assert len({h[0] for h in high}) == 1  # constant over the run
+    with np.load(files["run"] / "fields.npz") as f:
+        slip = f["slip"]
+    assert high[0][0] == pytest.approx(slip.max(), rel=1e-12)  # covers every step, and no more
+    data_steps, values = column(rrd, "/world/contact", "slip")
+    assert data_steps == steps
+    np.testing.assert_allclose(np.array(values, float), slip, rtol=1e-12, atol=0)
+    _, scale = column(rrd, "/run/colour_scale", "arrow_m_per_n")
+    assert len({s[0] for s in scale}) == 1
+    # colours on the run's scale: at the first push step, when slip is still small, no
+    # lower-face vertex is yellow (a per-step scale would make its largest value yellow)
+    colour_steps, colours = column(rrd, "/world/block", "Mesh3D:vertex_colors")
+    assert colour_steps[-N_STEPS:] == steps
+    assert slip[1].max() < 0.5 * slip.max()
+    yellow = 0xFDE725FF  # viridis at 1 (rgba)
+    assert yellow not in colours[-N_STEPS + 1] and yellow in colours[-1]
+
+
+def test_scene_floor_friction_ellipse_and_gripper(files):
+    rrd = files["run"] / "recording.rrd"
+    (friction,) = chunks(rrd, "/world/friction")
+    ellipse = np.array(friction.column("LineStrips3D:strips").to_pylist()[0][0])
+    semi = np.abs(ellipse[:, :2]).max(axis=0)
+    assert semi[0] / semi[1] == pytest.approx(0.3 / 0.05, rel=1e-3)  # mu_x / mu_y of the aniso scenario
+    assert chunks(rrd, "/world/floor")
+    steps, centres = column(rrd, "/world/gripper", "Boxes3D:centers")
+    assert steps == list(range(N_STEPS + 1))
+    lower = np.array([s["upper_centroid"] for s in summary_steps(files["run"])])
+    np.testing.assert_allclose(np.array(centres)[1:, 0, :2], lower[:, :2], atol=FLOAT32_TOL)
+
+
+def test_plan_overlays_follow_the_step_timeline(files, tmp_path):
+    mesh = load_scenario(files["aniso"]).model().mesh
+    verified = np.array([[0.0, 0.0, 0.0], [1e-3, 2e-4, 0.01], [2e-3, 5e-4, 0.02]])
+    with Recorder(tmp_path / "p.rrd", "plan", mesh) as rec:
+        rec.log_plan(target=(2e-3, 5e-4, 0.02), verified=verified, naive=verified * 0.5, first_step=1)
+    for entity in ("/plan/verified", "/plan/naive", "/plan/target"):
+        steps, _ = column(tmp_path / "p.rrd", entity, "Boxes3D:centers" if entity.endswith("target")
+                          else "LineStrips3D:strips")
+        assert steps == [1, 2, 3], entity
+    _, strips = column(tmp_path / "p.rrd", "/plan/verified", "LineStrips3D:strips")
+    assert [len(s[0]) for s in strips] == [1, 2, 3]  # the path so far at each step
+
+
+def test_every_output_file_follows_the_umask(files, tmp_path):
+    old = os.umask(0o022)
+    try:
+        out = tmp_path / "u"
+        assert main(["simulate", str(files["aniso"]), "--out", str(out), "--quiet"]) == 0
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in out.iterdir()}
+    assert modes == {"summary.json": 0o644, "fields.npz": 0o644, "recording.rrd": 0o644}

@@ -16,12 +16,20 @@ Entities (``Archetype:field`` columns in the file)::
     world/block          Mesh3D: surface of the deformed block; triangles static,
                          vertex positions and colours per step.  Lower-face
                          vertices are coloured by ``field`` (viridis, 0 -> dark
-                         blue, per-step maximum -> yellow), other vertices grey.
+                         blue, the run's maximum -> yellow: one scale for the whole
+                         run, written at close), other vertices grey.
     world/upper_face     LineStrips3D: centroid trajectory; Points3D: current centroid.
     world/lower_face     same for the lower face.
-    world/contact        Arrows3D: contact force on each lower node (longest arrow
-                         = half the block height); Points3D with class ids
-                         0 stick / 1 slip / 2 separated (AnnotationContext).
+    world/contact        Points3D with class ids 0 stick / 1 slip / 2 separated
+                         (AnnotationContext) and, per node, the fields as data:
+                         ``slip``, ``slip_path`` (m), ``pressure`` (Pa), ``normal_force`` (N).
+    world/contact/force  Arrows3D: contact force on each lower node (the run's longest
+                         arrow = half the block height; one scale for the run).
+    world/floor, world/friction, world/gripper
+                         the plane, the friction ellipse and the gripper plate
+                         (:mod:`pushplan.outputs.recording_scene`).
+    run/colour_scale     AnyValues per step: ``field``, ``low``, ``high`` (SI) of the
+                         colour scale and ``arrow_m_per_n``; the same at every step.
     legend               TextDocument per step: colour scale and arrow scale.
     plots/twist_deg, plots/lower_yaw_deg, plots/normal_force (N),
     plots/tangential_force (N, x and y), plots/newton_iterations,
@@ -46,7 +54,8 @@ Plans (:meth:`Recorder.log_plan`, for the planner)::
 Every argument is optional; each call replaces what an earlier call logged
 (``plan/target`` as a footprint box, ``plan/predicted``, ``plan/verified``,
 ``plan/naive`` as line strips with points and yaw arrows, ``plots/planner_cost``
-on ``planner_iteration``).  A plan run logs its FE-verified rollout with
+on ``planner_iteration``).  With ``first_step`` the overlays are on the step
+timeline (the path so far at each step), otherwise static.  A plan run logs its FE-verified rollout with
 :meth:`Recorder.log_step` so that ``pushplan replay`` can re-execute it.
 
 Determinism: the recording id is derived from the run name and the wall-clock
@@ -73,6 +82,7 @@ from fe_contact import BlockMesh, StepReport
 from fe_contact.mesh import surface_quads
 
 from ..config.commands import command_to_dict
+from . import recording_scene as scene
 from .atomic import commit_temporary, reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
@@ -88,7 +98,6 @@ _GREY = np.array([170, 170, 170], np.uint8)
 _STATUS_CLASSES = ((0, "stick", (40, 160, 70)), (1, "slip", (230, 120, 20)), (2, "separated", (140, 140, 140)))
 _PLOTS = ("twist_deg", "lower_yaw_deg", "normal_force", "tangential_force", "newton_iterations",
           "contact_iterations")
-_PLAN_COLOURS = {"predicted": (80, 140, 255), "verified": (40, 200, 80), "naive": (230, 60, 60)}
 
 
 def recording_id(run_name: str) -> str:
@@ -180,6 +189,8 @@ class Recorder:
         self._lower_traj = [self._lower_ref]
         self._upper_traj = [self._upper_ref]
         self._travel = 0.0
+        self._yaw = 0.0  # cumulative upper-face rotation, rad
+        self._deferred: list[tuple] = []  # per step: (k, travel, field values, arrow origins, forces)
 
         self._tmp = reserve_temporary(self.path)
         log_time = os.environ.get("RERUN_LOG_TIME", "").strip().lower() in ("1", "true", "on", "yes")
@@ -207,6 +218,9 @@ class Recorder:
         log("world/block", rr.Mesh3D.from_fields(triangle_indices=self._triangles), static=True)
         log("world/contact", rr.AnnotationContext(list(_STATUS_CLASSES)), static=True)
         log("plots/tangential_force", rr.SeriesLines(names=["x", "y"]), static=True)
+        log("world/floor", scene.floor(rr, mesh.size), static=True)
+        if spec is not None and "friction" in spec:
+            log("world/friction", *scene.friction_ellipse(rr, mesh.size, spec["friction"]), static=True)
         self._closed = False
         self._log_reference()
 
@@ -232,9 +246,9 @@ class Recorder:
         )
 
     # -- steps -------------------------------------------------------------------------
-    def _set_step(self, k: int) -> None:
+    def _set_step(self, k: int, travel: float | None = None) -> None:
         self.stream.set_time("step", sequence=int(k))
-        self.stream.set_time("load", sequence=int(round(self._travel * 1e9)))
+        self.stream.set_time("load", sequence=int(round((self._travel if travel is None else travel) * 1e9)))
 
     def _log_reference(self) -> None:
         rr = self._rr
@@ -247,6 +261,7 @@ class Recorder:
             vertex_colors=colours))
         for name, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
             self.stream.log(f"world/{name}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
+        self.stream.log("world/gripper", scene.gripper(rr, self.mesh.size, self._upper_ref, 0.0))
         self.stream.flush()
 
     def log_step(self, report: StepReport, summary=None) -> None:
@@ -276,30 +291,20 @@ class Recorder:
         if summary is None or summary.step != report.step_index:
             raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
         self._travel += math.sqrt(c.dx**2 + c.dy**2 + c.dz**2)
+        self._yaw += c.dtheta
         self._set_step(report.step_index)
         deformed = self.mesh.nodes + report.displacement
-        legend = [self._log_block(report, deformed), self._log_trajectories(report),
-                  self._log_contact(report, deformed)]
-        self.stream.log("legend", rr.TextDocument(f"## step {report.step_index}\n\n" + "\n\n".join(legend),
-                                                  media_type=rr.MediaType.MARKDOWN))
+        self._log_block(deformed)
+        self._log_trajectories(report)
+        self._log_contact(report, deformed)
         self._log_numbers(report, summary)
         self.stream.flush()
 
-    def _log_block(self, report: StepReport, deformed: np.ndarray) -> str:
-        """Block surface coloured by the chosen lower-face field; returns its legend line."""
-        rr = self._rr
-        name, unit, factor = FIELDS[self.field]
-        values = np.asarray(getattr(report, self.field), float)
-        vmax = float(values.max()) if values.size else 0.0
-        on_lower = self._surface_lower >= 0
-        colours = np.broadcast_to(_GREY, (self._surface_nodes.size, 3)).copy()
-        colours[on_lower] = colormap(values[self._surface_lower[on_lower]], vmax)
+    def _log_block(self, deformed: np.ndarray) -> None:
+        """Deformed block surface (its colours are logged at :meth:`close`, on one scale)."""
         positions = deformed[self._surface_nodes]
-        self.stream.log("world/block", rr.Mesh3D.from_fields(
-            vertex_positions=positions, vertex_normals=vertex_normals(positions, self._triangles),
-            vertex_colors=colours))
-        return (f"**block colour**: {name} on the lower face, viridis from 0 {unit} (dark blue) to "
-                f"{vmax * factor:.6g} {unit} (yellow); other faces grey.")
+        self.stream.log("world/block", self._rr.Mesh3D.from_fields(
+            vertex_positions=positions, vertex_normals=vertex_normals(positions, self._triangles)))
 
     def _log_trajectories(self, report: StepReport) -> str:
         rr = self._rr
@@ -307,21 +312,49 @@ class Recorder:
         self._upper_traj.append(self._upper_ref + np.asarray(report.upper_centroid))
         for face, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
             self.stream.log(f"world/{face}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
-        return "**lines**: centroid trajectories of the upper and lower faces."
+        self.stream.log("world/gripper", scene.gripper(rr, self.mesh.size, self._upper_traj[-1], self._yaw))
 
-    def _log_contact(self, report: StepReport, deformed: np.ndarray) -> str:
-        """Contact force arrows and node status points; returns their legend lines."""
+    def _log_contact(self, report: StepReport, deformed: np.ndarray) -> None:
+        """Node status points with the lower-face fields as data (``slip``, ``slip_path``
+        in m, ``pressure`` in Pa, ``normal_force`` in N per node); the force arrows are
+        logged at :meth:`close`, on one scale."""
         rr = self._rr
-        forces = np.asarray(report.reaction_world, float)
-        fmax = float(np.linalg.norm(forces, axis=1).max()) if forces.size else 0.0
-        scale = 0.5 * self.mesh.size[2] / fmax if fmax > 0 else 0.0
         origins = deformed[self.mesh.lower]
-        self.stream.log("world/contact", rr.Arrows3D(origins=origins, vectors=forces * scale),
-                        rr.Points3D(origins, class_ids=np.asarray(report.node_status, np.uint16),
-                                    radii=rr.Radius.ui_points(3.0)))
-        return (f"**contact arrows**: force on the block, {scale * 1e3:.6g} mm per N "
-                f"(longest {fmax:.6g} N).\n\n"
-                f"**contact points**: green stick, orange slip, grey separated.")
+        self.stream.log("world/contact", rr.Points3D(origins, class_ids=np.asarray(report.node_status, np.uint16),
+                                                     radii=rr.Radius.ui_points(3.0)),
+                        rr.AnyValues(**{name: np.asarray(getattr(report, name), float) for name in FIELDS},
+                                     normal_force=np.asarray(report.reaction_local, float)[:, 0]))
+        self._deferred.append((report.step_index, self._travel, np.asarray(getattr(report, self.field), float),
+                               origins, np.asarray(report.reaction_world, float)))
+
+    def _log_fixed_scales(self) -> None:
+        """Every step's lower-face colours and force arrows on one scale for the run
+        (``[0, largest value of any step]``, ``largest force of any step`` = half the block
+        height), the scales logged as data (``run/colour_scale``) and in the legend."""
+        rr = self._rr
+        if not self._deferred:
+            return
+        name, unit, factor = FIELDS[self.field]
+        vmax = max(float(v.max()) if v.size else 0.0 for _, _, v, _, _ in self._deferred)
+        fmax = max(float(np.linalg.norm(f, axis=1).max()) if f.size else 0.0 for *_, f in self._deferred)
+        scale = 0.5 * self.mesh.size[2] / fmax if fmax > 0 else 0.0
+        on_lower = self._surface_lower >= 0
+        for k, travel, values, origins, forces in self._deferred:
+            self._set_step(k, travel)
+            colours = np.broadcast_to(_GREY, (self._surface_nodes.size, 3)).copy()
+            colours[on_lower] = colormap(values[self._surface_lower[on_lower]], vmax)
+            self.stream.log("world/block", rr.Mesh3D.from_fields(vertex_colors=colours))
+            self.stream.log("world/contact/force", rr.Arrows3D(origins=origins, vectors=forces * scale))
+            self.stream.log("run/colour_scale", rr.AnyValues(field=self.field, unit="SI", low=0.0, high=vmax,
+                                                              arrow_m_per_n=scale))
+            self.stream.log("legend", rr.TextDocument(
+                f"## step {k}\n\n**block colour**: {name} on the lower face, viridis from 0 {unit} (dark blue) "
+                f"to {vmax * factor:.6g} {unit} (yellow), one scale for the whole run; other faces grey.\n\n"
+                f"**contact arrows**: force on the block, {scale * 1e3:.6g} mm per N (longest of the run "
+                f"{fmax:.6g} N).\n\n**contact points**: green stick, orange slip, grey separated; select one "
+                "for its slip, slip path, pressure and normal force.\n\n**orange ellipse**: the friction "
+                "ellipse of the surface (axes t_x, t_y scaled by mu_x, mu_y).",
+                media_type=rr.MediaType.MARKDOWN))
 
     def _log_numbers(self, report: StepReport, summary) -> None:
         """Plots, the replayable ``run/step`` row and the log line."""
@@ -340,8 +373,13 @@ class Recorder:
             level=rr.TextLogLevel.INFO))
 
     # -- plans -------------------------------------------------------------------------
-    def log_plan(self, target=None, predicted=None, verified=None, naive=None, cost=None) -> None:
+    def log_plan(self, target=None, predicted=None, verified=None, naive=None, cost=None,
+                 first_step: int | None = None) -> None:
         """Log a plan (see the module docstring for shapes and units).
+
+        With ``first_step`` (the step index of pose row 0, e.g. the number of press
+        steps), the overlays follow the step timeline: at step ``first_step + k`` the
+        paths up to row ``k`` and the target; without it they are static.
 
         Raises
         ------
@@ -351,29 +389,26 @@ class Recorder:
         rr = self._rr
         if self._closed:
             raise ValueError(f"recording {self.path} is closed")
-        log = self.stream.log
-        lx, ly, _ = self.mesh.size
-        arrow = 0.25 * min(lx, ly)
+        size = self.mesh.size
+        arrow = 0.25 * min(size[0], size[1])
+        overlays = {name: _poses(name, value) for name, value in
+                    (("predicted", predicted), ("verified", verified), ("naive", naive)) if value is not None}
+        box = None
         if target is not None:
             t = np.asarray(target, float).ravel()
             if t.shape not in ((2,), (3,)) or not np.all(np.isfinite(t)):
                 raise ValueError(f"target must be (x, y) or (x, y, yaw) finite numbers, got {target!r}")
-            yaw = float(t[2]) if t.size == 3 else 0.0
-            log("plan/target", rr.Boxes3D(
-                centers=[[t[0], t[1], 0.0]], half_sizes=[[lx / 2, ly / 2, 0.0]],
-                rotation_axis_angles=[rr.RotationAxisAngle(axis=[0, 0, 1], radians=yaw)],
-                colors=[(255, 200, 0)], labels=["target"]), static=True)
-        for name, value in (("predicted", predicted), ("verified", verified), ("naive", naive)):
-            if value is None:
-                continue
-            poses = _poses(name, value)
-            xyz = np.column_stack([poses[:, :2], np.zeros(len(poses))])
-            colour = _PLAN_COLOURS[name]
-            archetypes = [rr.LineStrips3D([xyz], colors=[colour], labels=[name]), rr.Points3D(xyz, colors=[colour])]
-            if poses.shape[1] == 3:
-                heading = arrow * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2]), np.zeros(len(poses))])
-                archetypes.append(rr.Arrows3D(origins=xyz, vectors=heading, colors=[colour]))
-            log(f"plan/{name}", *archetypes, static=True)
+            box = scene.target_box(rr, size, t)
+        rows = max((len(p) for p in overlays.values()), default=1)
+        self.stream.disable_timeline("load")  # plan rows are steps, not travel
+        for k in ([None] if first_step is None else range(rows)):
+            if k is not None:
+                self.stream.set_time("step", sequence=int(first_step + k))
+            if box is not None:
+                self.stream.log("plan/target", box, static=k is None)
+            for name, poses in overlays.items():
+                shown = poses if k is None else poses[:k + 1]
+                self.stream.log(f"plan/{name}", *scene.pose_path(rr, name, shown, arrow), static=k is None)
         if cost is not None:
             c = np.asarray(cost, float).ravel()
             if c.size == 0:
@@ -390,6 +425,7 @@ class Recorder:
         """Flush, disconnect and move the finished file into place; returns its path."""
         if not self._closed:
             self._closed = True
+            self._log_fixed_scales()
             self.stream.flush()
             self.stream.disconnect()
             commit_temporary(self._tmp, self.path)

@@ -93,8 +93,7 @@ def write_recording(result: PlanResult, path, verification_model: Model) -> None
     from ..outputs.recording import Recorder
 
     spec = result.spec
-    resolved = result.scenario.to_dict()
-    resolved["load"] = plan_commands_json(result)
+    resolved = {**result.scenario.to_dict(), "load": plan_commands_json(result)}
     reports = (*result.press_reports, *result.verified.reports)
     steps = (*result.press_steps, *result.verified.steps)  # built once, by the driver
     with Recorder(path, f"plan_{result.scenario.name}", verification_model.mesh, scenario=resolved) as rec:
@@ -103,4 +102,4 @@ def write_recording(result: PlanResult, path, verification_model: Model) -> None
         dims = 3 if spec.yaw_targeted else 2
         rec.log_plan(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
                      verified=result.verified.lower[:, :dims], naive=result.naive.lower[:, :dims],
-                     cost=[it.objective for it in result.iterations])
+                     cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))
