@@ -259,3 +259,6 @@ def test_infeasible_target_gives_best_reachable_plan(tmp_path, capsys):
     straight = fe_final_pose(parse_scenario(data), [[3e-4, 0.0, 0.0]] * 2)
     assert np.hypot(*(final - [2e-3, 0.0])) <= np.hypot(*(straight[:2] - [2e-3, 0.0])) + 1e-3 * 3e-4
     assert final[0] > 3e-4  # and it did move the block most of the way the bounds allow
+    # the naive baseline it is compared with keeps the same step bounds (issue 22)
+    naive = np.array([[c["dx"], c["dy"]] for c in doc["naive"]["commands"]])
+    np.testing.assert_allclose(naive, [[3e-4, 0.0]] * 2, rtol=1e-12)

@@ -13,9 +13,16 @@ from ..config.plan import PlanSpec
 
 
 def naive_commands(spec: PlanSpec) -> np.ndarray:
-    """The baseline: the upper face moved straight by the target pose in K equal steps, (K, 3)."""
-    t = np.array(spec.target) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
-    return np.tile(t / spec.steps, (spec.steps, 1))
+    """The baseline: the upper face moved straight towards the target pose in K equal
+    steps, (K, 3), each within the step bounds (``max_step``, ``max_dtheta``) the plan
+    has: for a target out of reach the baseline goes as far as the robot may, like the plan."""
+    step = np.array(spec.target) * np.array([1.0, 1.0, float(spec.yaw_targeted)]) / spec.steps
+    length = math.hypot(step[0], step[1])
+    if length > spec.max_step:
+        step[:2] *= spec.max_step / length
+    if spec.yaw_targeted and abs(step[2]) > spec.max_dtheta:
+        step[2] = math.copysign(spec.max_dtheta, step[2])
+    return np.tile(step, (spec.steps, 1))
 
 
 def pose_error(pose, spec: PlanSpec) -> tuple[float, float]:
