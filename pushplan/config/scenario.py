@@ -146,7 +146,10 @@ def _solver(table) -> SolverOptions:
     for k in ("local_max_iter", "newton_max_iter"):
         if k in t:
             t.integer(k, minimum=1)
-    return SolverOptions(**values)
+    try:
+        return SolverOptions(**values)
+    except ValueError as exc:  # a check of fe_contact's own not repeated above; its message names the field
+        raise InputError(f"solver.{exc}") from None
 
 
 def _commands(loads) -> tuple[Command, ...]:
