@@ -205,6 +205,11 @@ def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     assert np.all(fe_twist > FE_TWIST_MIN_DEG)
     for r in steps["rigid_weld"]:
         assert abs(r["twist_deg"]) < RIGID_TWIST_DEG and abs(r["deviation_deg"]) < RIGID_TWIST_DEG
+    # yaw in the summary: the final and largest of the steps' lower-face yaw
+    for name, res in result["models"].items():
+        yaws = [r["lower_yaw_deg"] for r in res["steps"]]
+        assert res["summary"]["final_lower_yaw_deg"] == yaws[-1]
+        assert res["summary"]["max_abs_lower_yaw_deg"] == max(abs(v) for v in yaws)
     for r in steps["flex_isotropic"]:
         assert abs(r["deviation_deg"]) < FLEX_DEVIATION_DEG
         assert np.linalg.norm(r["lower"][:2]) > 0.5 * np.linalg.norm(r["drive"][:2])  # it did slide

@@ -46,14 +46,14 @@ def rz(a: float) -> np.ndarray:
 
 def yawed_scene(tmp_path: Path, yaw_deg: float = YAW0_DEG, z: float = HEIGHT / 2, friction_angle=None,
                 name: str = "yawed.xml") -> Path:
-    """The scene with the block at (X0, Y0, z) yawed ``yaw_deg``, the gripper on its upper
-    face, ``nuserdata = 9`` and optionally ``pushplan_friction_angle``."""
+    """The scene (``nuserdata = 9``) with the block at (X0, Y0, z) yawed ``yaw_deg``, the
+    gripper on its upper face and optionally ``pushplan_friction_angle``."""
     text = SCENE_XML.read_text()
+    assert '<size nuserdata="9"/>' in text
     swaps = [
         ('<body name="block" pos="0 0 0.005">', f'<body name="block" pos="{X0} {Y0} {z!r}" euler="0 0 {yaw_deg}">'),
         ('<body name="gripper" mocap="true" pos="0 0 0.01">',
          f'<body name="gripper" mocap="true" pos="{X0} {Y0} {HEIGHT}" euler="0 0 {yaw_deg}">'),
-        ('<custom>', '<size nuserdata="9"/>\n  <custom>'),
     ]
     if friction_angle is not None:
         swaps.append(('<numeric name="pushplan_poisson" data="0.3"/>', '<numeric name="pushplan_poisson" '

@@ -40,10 +40,15 @@ def _fe_model(args, scene):
 
 
 def cmd_import(args) -> int:
+    import math
+
     scene, _ = _scene(args)
     s = scene.scenario
     print(f"block {scene.block_body!r} ({scene.block_geom}): size {[round(v * 1e3, 6) for v in s.size]} mm, "
           f"mass {scene.block_mass * 1e3:.4g} g")
+    c = scene.lower_centre * 1e3
+    print(f"rest pose (world, the FE frame's origin): lower-face centre {c[0]:.6g}, {c[1]:.6g}, {c[2]:.6g} mm, "
+          f"yaw {math.degrees(scene.yaw):.6g} deg")
     print(f"friction ({scene.pair or 'dynamic contact'}): mu_x = {s.mu_x}, mu_y = {s.mu_y}, angle = {s.angle_deg} deg")
     print(f"material: E = {s.young:.4g} Pa, nu = {s.poisson}")
     for k, v in scene.from_mjcf.items():

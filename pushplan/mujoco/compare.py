@@ -177,8 +177,8 @@ def plot_png(result: Comparison) -> bytes:
         xy = np.array([[0.0, 0.0]] + [r.lower[:2] for r in run.steps]) * 1e3
         last = run.steps[-1]
         ax.plot(xy[:, 0], xy[:, 1], "o-", ms=3,
-                label=f"{name}: twist {math.degrees(last.twist):.2f}°, deviation {math.degrees(last.deviation):.2f}°, "
-                      f"yaw {math.degrees(last.lower_yaw):.3f}°")
+                label=f"{name}: twist {math.degrees(last.twist):.2f}°, "
+                      f"deviation {math.degrees(last.deviation):.2f}°, yaw {math.degrees(last.lower_yaw):.3f}°")
         ax_yaw.plot([0] + [r.step for r in run.steps], [0.0] + [math.degrees(r.lower_yaw) for r in run.steps],
                     "o-", ms=3, label=name)
     ax.set_xlabel("world x (mm)")
@@ -190,6 +190,7 @@ def plot_png(result: Comparison) -> bytes:
     ax_yaw.set_ylabel("lower-face yaw (deg)")
     ax_yaw.set_title("lower-face yaw")
     ax_yaw.legend(fontsize=7)
+    fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)

@@ -366,6 +366,7 @@ def save_recording(path: Path, record: CosimRecord) -> None:
                                                  quaternions=[rr.Quaternion(xyzw=np.roll(quat, -1))]))
             log("world/mujoco/gripper_centre", rr.Points3D([p.gripper_centre]))
             log("world/mujoco/fe_forces", rr.Arrows3D(
-                origins=[p.lower_centre, p.gripper_centre], vectors=arrow * np.array([p.contact_force, p.gripper_force]),
+                origins=[p.lower_centre, p.gripper_centre],
+                vectors=arrow * np.array([p.contact_force, p.gripper_force]),
                 labels=["FE contact resultant", "FE gripper force"]))
             log("plots/mujoco_yaw_deg", rr.Scalars(math.degrees(p.mujoco_yaw)))
