@@ -51,9 +51,11 @@ class CoSimulation:
     the gripper's displacement since the previous period into an upper-face
     :class:`fe_contact.Command`, steps the FE model and writes the block's
     resulting lower-face pose (centroid displacement and best-fit yaw) into the
-    MuJoCo block (free joint ``qpos`` with zero ``qvel``, or mocap pose).  Between
-    periods it re-writes that pose, so MuJoCo shows the FE prediction, not its own
-    rigid dynamics.  A failed FE step keeps the last good state and pose; the next
+    MuJoCo block (free joint ``qpos`` with zero ``qvel``, or mocap pose) and the FE
+    forces into ``data.xfrc_applied`` / ``data.userdata`` (module docstring; also kept
+    as :attr:`gripper_force`, :attr:`contact_force`, :attr:`contact_moment`, world
+    frame).  Between periods it re-writes pose and forces, so MuJoCo shows the FE
+    prediction, not its own rigid dynamics.  A failed FE step keeps the last good state and pose; the next
     period retries with the accumulated gripper motion.
 
     At construction the block is put at its reference (``qpos0``) pose and the FE
