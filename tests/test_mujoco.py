@@ -160,8 +160,9 @@ def test_offset_rotating_gripper_keyframes_and_coupler_recover_the_commands(tmp_
     scene = scene_from_mjcf(path, base=open_scene(SCENE_TOML)[0].scenario)
     commands = [Command(*PRESS), Command(*PUSH, dtheta=0.01), Command(*PUSH, dtheta=-0.004)]
     period = 0.01
-    export_plan(tmp_path / "plan.npz", scene, commands, "gripper", period)
-    export_plan(tmp_path / "plan.xml", scene, commands, "gripper", period)
+    fe = scene.scenario.model(elements=(2, 2, 1))
+    export_plan(tmp_path / "plan.npz", scene, commands, "gripper", period, fe)
+    export_plan(tmp_path / "plan.xml", scene, commands, "gripper", period, fe)
     # expected knots: upper-face centre = start + sum of increments; gripper = centre + R(yaw) (offset, 0, 0)
     centre = np.vstack([[0.0, 0.0, 0.01], [0.0, 0.0, 0.01] + np.cumsum([[c.dx, c.dy, c.dz] for c in commands], 0)])
     yaw = np.concatenate([[0.0], np.cumsum([c.dtheta for c in commands])])
@@ -204,6 +205,11 @@ def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     assert np.all(fe_twist > FE_TWIST_MIN_DEG)
     for r in steps["rigid_weld"]:
         assert abs(r["twist_deg"]) < RIGID_TWIST_DEG and abs(r["deviation_deg"]) < RIGID_TWIST_DEG
+    # yaw in the summary: the final and largest of the steps' lower-face yaw
+    for name, res in result["models"].items():
+        yaws = [r["lower_yaw_deg"] for r in res["steps"]]
+        assert res["summary"]["final_lower_yaw_deg"] == yaws[-1]
+        assert res["summary"]["max_abs_lower_yaw_deg"] == max(abs(v) for v in yaws)
     for r in steps["flex_isotropic"]:
         assert abs(r["deviation_deg"]) < FLEX_DEVIATION_DEG
         assert np.linalg.norm(r["lower"][:2]) > 0.5 * np.linalg.norm(r["drive"][:2])  # it did slide
@@ -231,16 +237,17 @@ def test_cli_cosim_compare_export_and_bad_input(tmp_path, capsys):
     record = json.loads((tmp_path / "co" / "cosim.json").read_text())
     assert record["status"] == "completed" and len(record["periods"]) == 5
     for p in record["periods"]:
-        np.testing.assert_allclose(p["mujoco_lower_centre"], p["fe_lower_centroid"], atol=POSE_TOL)
+        # the scene's block rests at the world origin unyawed: world and FE frames coincide
+        np.testing.assert_allclose(p["mujoco_lower_centre"], p["fe_frame"]["lower_centroid"], atol=POSE_TOL)
     assert (tmp_path / "co" / "cosim.rrd").stat().st_size > 0
     assert "control periods/s" in capsys.readouterr().out
     assert main(["mujoco", "compare", str(SCENE_TOML), "--out", str(tmp_path / "cmp"), "--no-flex", *coarse]) == 0
     assert set(json.loads((tmp_path / "cmp" / "comparison.json").read_text())["models"]) == {
         "fe", "rigid_weld", "rigid_force"}
-    assert main(["mujoco", "export", str(SCENE_TOML), "--out", str(tmp_path / "plan.npz")]) == 0
+    assert main(["mujoco", "export", str(SCENE_TOML), "--out", str(tmp_path / "plan.npz"), *coarse]) == 0
     assert np.load(tmp_path / "plan.npz")["mocap_pos"].shape == (6, 3)
     assert main(["mujoco", "import", str(tmp_path / "missing.xml")]) == 2
-    assert main(["mujoco", "export", str(SCENE_TOML), "--out", str(tmp_path / "plan.csv")]) == 2
+    assert main(["mujoco", "export", str(SCENE_TOML), "--out", str(tmp_path / "plan.txt")]) == 2
     assert main(["mujoco", "cosim", str(SCENE_XML), "--out", str(tmp_path / "x")]) == 2  # no commands
     assert "no commands" in capsys.readouterr().err
 

@@ -40,10 +40,15 @@ def _fe_model(args, scene):
 
 
 def cmd_import(args) -> int:
+    import math
+
     scene, _ = _scene(args)
     s = scene.scenario
     print(f"block {scene.block_body!r} ({scene.block_geom}): size {[round(v * 1e3, 6) for v in s.size]} mm, "
           f"mass {scene.block_mass * 1e3:.4g} g")
+    c = scene.lower_centre * 1e3
+    print(f"rest pose (world, the FE frame's origin): lower-face centre {c[0]:.6g}, {c[1]:.6g}, {c[2]:.6g} mm, "
+          f"yaw {math.degrees(scene.yaw):.6g} deg")
     print(f"friction ({scene.pair or 'dynamic contact'}): mu_x = {s.mu_x}, mu_y = {s.mu_y}, angle = {s.angle_deg} deg")
     print(f"material: E = {s.young:.4g} Pa, nu = {s.poisson}")
     for k, v in scene.from_mjcf.items():
@@ -67,12 +72,13 @@ def cmd_compare(args) -> int:
     fe_model = _fe_model(args, scene)
     out = prepare_output_dir(args.out)
     result = compare(scene, commands, settings, fe_model, models, out)
-    print(f"{'model':>15} {'lower x,y (mm)':>20} {'twist':>9} {'deviation':>10} {'wall':>7}")
+    print("world frame: lower = lower-face centre displacement, yaw = its yaw change")
+    print(f"{'model':>15} {'lower x,y (mm)':>20} {'yaw':>9} {'twist':>9} {'deviation':>10} {'wall':>7}")
     for name, run in result.models.items():
         last = run.steps[-1]
         lo = last.lower * 1e3
-        print(f"{name:>15} {lo[0]:>9.4f},{lo[1]:>9.4f} {math.degrees(last.twist):>8.3f}° "
-              f"{math.degrees(last.deviation):>9.3f}° {run.wall_s:>6.2f}s")
+        print(f"{name:>15} {lo[0]:>9.4f},{lo[1]:>9.4f} {math.degrees(last.lower_yaw):>8.3f}° "
+              f"{math.degrees(last.twist):>8.3f}° {math.degrees(last.deviation):>9.3f}° {run.wall_s:>6.2f}s")
     print(f"wrote {out / 'comparison.json'} and {out / 'comparison.png'}")
     return 0
 
@@ -84,7 +90,8 @@ def cmd_cosim(args) -> int:
 
     from ..mujoco.cosim import run_cosimulation
     from ..outputs.atomic import atomic_write_json, prepare_output_dir
-    from ..run.summary import RunStatus
+    from ..run.summary import RunStatus, StepSummary
+    from .units import engineering, twist_text
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
@@ -93,11 +100,17 @@ def cmd_cosim(args) -> int:
     record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
                               rrd_path=None if args.no_rerun else out / "cosim.rrd")
     atomic_write_json(out / "cosim.json", record.to_dict())
+    print("world frame: lower = lower-face centre displacement, yaw = its yaw change, "
+          "F = gripper force on the block (N)")
     for p in record.periods:
         rep = p.report
-        lo = np.asarray(rep.lower_centroid) * 1e3
+        lo = (np.asarray(p.lower_centre) - scene.lower_centre) * 1e3
+        f = np.where(np.abs(p.gripper_force) > 1e-9 * np.linalg.norm(p.gripper_force), p.gripper_force, 0.0)
+        force = ", ".join(engineering(float(v), "N") for v in f)  # rounding-level components shown as 0
+        twist = twist_text(StepSummary.from_report(rep)) if rep.converged else "-"
         print(f"period {p.period:>3} t = {p.time:.3f} s  lower {lo[0]:8.4f},{lo[1]:8.4f} mm  "
-              f"twist {math.degrees(rep.twist):7.3f}°  FE {rep.wall_time * 1e3:6.1f} ms")
+              f"yaw {math.degrees(p.lower_yaw - scene.yaw):7.3f}°  twist {twist:>8}  "
+              f"F {force}  FE {rep.wall_time * 1e3:6.1f} ms")
     print(f"co-simulation rate: {record.rate_periods_per_s:.2f} control periods/s "
           f"({len(record.periods)} periods, {record.steps_per_period} MuJoCo steps each, "
           f"{record.wall_s:.2f} s)")
@@ -108,13 +121,28 @@ def cmd_cosim(args) -> int:
     return 0
 
 
+def _export_path(args):
+    """``--out`` with the ``--format`` suffix; a different suffix is bad input."""
+    from pathlib import Path
+
+    out = Path(args.out)
+    if args.format is None:
+        return out
+    if out.suffix.lower() == f".{args.format}":
+        return out
+    if out.suffix:
+        raise InputError(f"--format {args.format} does not match --out {out.name}")
+    return out.with_suffix(f".{args.format}")
+
+
 def cmd_export(args) -> int:
     from ..mujoco.trajectory import export_plan
 
+    out = _export_path(args)
     scene, settings = _scene(args)
     commands = _commands(args, scene)
-    path = export_plan(args.out, scene, commands, settings.gripper, settings.control_period)
-    print(f"wrote {path} ({len(commands) + 1} gripper knots, {settings.control_period} s apart)")
+    path = export_plan(out, scene, commands, settings.gripper, settings.control_period, _fe_model(args, scene))
+    print(f"wrote {path} ({len(commands) + 1} knots of gripper and FE block pose, {settings.control_period} s apart)")
     return 0
 
 
@@ -150,7 +178,10 @@ def register(subparsers) -> None:
     q.add_argument("--out", required=True, help="output folder (cosim.json, cosim.rrd)")
     q.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     q.set_defaults(func=cmd_cosim)
-    q = sub.add_parser("export", help="write a plan as MuJoCo gripper keyframes (.xml) or times and poses (.npz)")
-    _common(q, fe=False)
-    q.add_argument("--out", required=True, help="output file, .xml (MJCF <keyframe>) or .npz")
+    q = sub.add_parser("export", help="write a plan as MuJoCo keyframes (.xml) or times and poses (.npz, .csv): "
+                                      "gripper mocap and FE block pose")
+    _common(q)
+    q.add_argument("--out", required=True, help="output file, .xml (MJCF <keyframe>), .npz or .csv")
+    q.add_argument("--format", choices=("xml", "npz", "csv"),
+                   help="file format (default: the --out suffix; a suffix is added when missing)")
     q.set_defaults(func=cmd_export)

@@ -36,14 +36,42 @@ def _verification_error(scenario, doc: dict, ratio: float) -> dict:
             "position_gci": math.hypot(gx, gy) if gx is not None and gy is not None else None}
 
 
+def _world_frame(path):
+    """(scenario, origin) for ``[plan] frame = "world"``: the scenario as the ``[mujoco]``
+    scene gives it and the block's rest pose there (lower-face centre x, y in m, yaw in rad)."""
+    from ..mujoco.scene import open_scene
+
+    scene, _ = open_scene(path)
+    return scene.scenario, (float(scene.lower_centre[0]), float(scene.lower_centre[1]), scene.yaw)
+
+
+def _world_poses(doc: dict, spec) -> dict:
+    """``plan.json``'s ``world`` entry: target, origin and the verified poses in the world
+    frame (rows ``[x (m), y (m), yaw (deg)]``; yaw the block's world yaw)."""
+    import math
+
+    from ..config.plan import block_to_world
+
+    def row(pose):
+        x, y, yaw = block_to_world((pose[0], pose[1], math.radians(pose[2])), spec.world_origin)
+        return [x, y, math.degrees(yaw)]
+
+    verified = [row(p) for p in doc["poses"]["verified"]]
+    return {**doc["plan"]["world"], "verified": verified, "verified_final": verified[-1],
+            "naive_final": row(doc["naive"]["verified_poses"][-1])}
+
+
 def cmd_plan(args) -> int:
     from ..config import load_scenario
     from ..config.plan import parse_plan
     from ..outputs import atomic_write_json, prepare_output_dir
     from ..planning import plan, plan_document, write_recording
 
-    scenario = load_scenario(args.scenario)
-    spec = parse_plan(scenario)
+    scenario, origin = load_scenario(args.scenario), None
+    table = scenario.extra.get("plan")
+    if isinstance(table, dict) and table.get("frame") == "world":
+        scenario, origin = _world_frame(args.scenario)
+    spec = parse_plan(scenario, world_origin=origin)
     out = prepare_output_dir(args.out)
 
     def log(text):
@@ -52,6 +80,8 @@ def cmd_plan(args) -> int:
 
     result = plan(scenario, spec, log=log)
     doc = plan_document(result)
+    if spec.world_origin is not None:
+        doc["world"] = _world_poses(doc, spec)
     if args.verification_error:
         doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
     atomic_write_json(out / "plan.json", doc)
@@ -62,6 +92,9 @@ def cmd_plan(args) -> int:
     print(f"{scenario.name}: {result.status} ({result.message})")
     print(f"  planned final error (FE, verification mesh): {_describe(doc['final_error'])}")
     print(f"  naive final error   (FE, verification mesh): {_describe(doc['naive']['final_error'])}")
+    if spec.world_origin is not None:
+        x, y, yaw = doc["world"]["verified_final"]
+        print(f"  verified final pose (world frame): x {x * 1e3:.5f} mm, y {y * 1e3:.5f} mm, yaw {yaw:.4f} deg")
     if args.verification_error:
         ve = doc["verification_error"]
         gci = "no monotone sequence" if ve["position_gci"] is None else f"{ve['position_gci'] * 1e3:.5f} mm"

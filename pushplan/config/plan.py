@@ -16,6 +16,13 @@ applied before the planned commands; the ``[plan]`` table reads (SI units)::
     planning_elements = [6, 6, 2]
     planning_quadrature = 2
     max_rollouts = 6           # FE rollouts per mesh in the correction loop
+    frame = "block"            # "world": x, y, yaw_deg are the MuJoCo world pose (below)
+
+With ``frame = "world"`` (a scenario with a ``[mujoco]`` table) ``x``, ``y`` are the
+world position (m) of the lower-face centre and ``yaw_deg`` the block's world yaw;
+:func:`world_to_block` turns them into the block-frame displacement the planner works
+in, from the block's rest pose in the MJCF (``origin``: lower-face centre x, y and yaw
+at ``qpos0``, given to :func:`parse_plan` by the caller that read the MJCF).
 
 :func:`parse_plan` gives a :class:`PlanSpec`; ``parse_plan`` of a scenario whose
 ``[plan]`` is ``spec.to_table()`` gives ``spec`` back.
@@ -27,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 from fe_contact import Command
+from fe_contact.pose import wrap_angle
 
 from ..errors import InputError
 from .commands import degrees_exact
@@ -35,8 +43,9 @@ from .validate import Table, count
 
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
-    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts",
+    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame",
 })
+FRAMES = ("block", "world")
 REQUIRED_KEYS = frozenset({"x", "y", "steps", "max_step"})
 DEFAULT_TOLERANCE_REL = 0.0025
 """Default position tolerance as a fraction of the travel distance."""
@@ -66,6 +75,10 @@ class PlanSpec:
     planning_elements: tuple[int, int, int]
     planning_quadrature: int
     max_rollouts: int
+    world_target: tuple[float, float, float] | None = None
+    """With ``frame = "world"``: the table's world ``(x, y, yaw)`` (m, rad)."""
+    world_origin: tuple[float, float, float] | None = None
+    """With ``frame = "world"``: the block's rest pose ``(x, y, yaw)`` in the world."""
 
     @property
     def travel(self) -> float:
@@ -90,7 +103,12 @@ class PlanSpec:
             "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
             "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
             "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-            "travel": self.travel,
+            "travel": self.travel, "frame": "block" if self.world_origin is None else "world",
+            **({} if self.world_origin is None else {"world": {
+                "x": self.world_target[0], "y": self.world_target[1],
+                "yaw_deg": math.degrees(self.world_target[2]) if self.yaw_targeted else None,
+                "origin": {"x": self.world_origin[0], "y": self.world_origin[1],
+                           "yaw_deg": math.degrees(self.world_origin[2])}}}),
         }
 
     def to_table(self) -> dict:
@@ -101,7 +119,40 @@ class PlanSpec:
                  "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts}
         if self.yaw_targeted:
             table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
+        if self.world_target is not None:
+            table.update(frame="world", x=self.world_target[0], y=self.world_target[1])
+            if self.yaw_targeted:
+                table.update(yaw_deg=degrees_exact(self.world_target[2]))
         return table
+
+
+def world_to_block(pose, origin) -> tuple[float, float, float]:
+    """Block-frame target ``(x, y, yaw)`` (displacement from rest, m, rad) of a world pose.
+
+    Parameters
+    ----------
+    pose : (3,)
+        World position ``x, y`` (m) of the lower-face centre and world yaw (rad).
+    origin : (3,)
+        The block's rest pose in the world: lower-face centre ``x0, y0`` and yaw ``a0``.
+
+    Returns
+    -------
+    tuple
+        ``R(-a0) (x - x0, y - y0)`` and ``yaw - a0`` wrapped to (-pi, pi].
+    """
+    x0, y0, a0 = (float(v) for v in origin)
+    c, s = math.cos(a0), math.sin(a0)
+    dx, dy = float(pose[0]) - x0, float(pose[1]) - y0
+    return c * dx + s * dy, -s * dx + c * dy, float(wrap_angle(float(pose[2]) - a0))
+
+
+def block_to_world(pose, origin) -> tuple[float, float, float]:
+    """World pose of a block-frame lower-face pose (the inverse of :func:`world_to_block`)."""
+    x0, y0, a0 = (float(v) for v in origin)
+    c, s = math.cos(a0), math.sin(a0)
+    x, y = float(pose[0]), float(pose[1])
+    return x0 + c * x - s * y, y0 + s * x + c * y, float(wrap_angle(float(pose[2]) + a0))
 
 
 def press_commands(scenario: Scenario) -> tuple[Command, ...]:
@@ -123,14 +174,21 @@ def press_commands(scenario: Scenario) -> tuple[Command, ...]:
     return cmds
 
 
-def parse_plan(scenario: Scenario) -> PlanSpec:
+def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     """Validate the scenario's ``[plan]`` table and its press.
+
+    Parameters
+    ----------
+    world_origin : (3,), optional
+        The block's rest pose in the world (lower-face centre x, y in m, yaw in rad),
+        needed by ``frame = "world"``.
 
     Raises
     ------
     InputError
         Missing table, unknown key or bad value (named), a ``[[load]]`` that is not
-        a press (``dz`` only, net compression), or friction missing in a direction.
+        a press (``dz`` only, net compression), friction missing in a direction, or
+        ``frame = "world"`` without ``world_origin``.
     """
     if "plan" not in scenario.extra:
         raise InputError(f"scenario {scenario.name!r} has no [plan] table")
@@ -152,6 +210,17 @@ def parse_plan(scenario: Scenario) -> PlanSpec:
         raise InputError("plan.max_dtheta_deg is only used with plan.yaw_deg (rotation commands)")
     else:
         max_dtheta = 0.0
+    world_target = None
+    if t.choice("frame", FRAMES, "block") == "world":
+        if world_origin is None:
+            raise InputError("plan.frame = 'world' needs the block's world pose: a [mujoco] table naming the "
+                             "MJCF scene (pushplan plan reads it)")
+        world_origin = tuple(float(v) for v in world_origin)
+        world_target = (x, y, yaw)
+        x, y, block_yaw = world_to_block(world_target, world_origin)
+        yaw = block_yaw if yaw_targeted else 0.0
+    else:
+        world_origin = None
     travel = math.hypot(x, y)
     if "tolerance" in t:
         tolerance = t.number("tolerance", positive=True)
@@ -167,4 +236,5 @@ def parse_plan(scenario: Scenario) -> PlanSpec:
         planning_elements=t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS)),
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=1, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1),
+        world_target=world_target, world_origin=world_origin,
     )

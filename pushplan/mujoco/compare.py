@@ -50,9 +50,12 @@ class ModelRun:
     wall_s: float
 
     def summary(self) -> dict:
-        """Final and largest |twist| / |deviation| (degrees), final lower-face displacement (m)."""
+        """Final and largest |twist| / |deviation| / |lower-face yaw| (degrees), final
+        lower-face displacement (m, world frame)."""
         last = self.steps[-1].to_dict() if self.steps else {}
         return {
+            "final_lower_yaw_deg": last.get("lower_yaw_deg", 0.0),
+            "max_abs_lower_yaw_deg": max((abs(math.degrees(r.lower_yaw)) for r in self.steps), default=0.0),
             "final_twist_deg": last.get("twist_deg", 0.0),
             "final_deviation_deg": last.get("deviation_deg", 0.0),
             "max_abs_twist_deg": max((abs(math.degrees(r.twist)) for r in self.steps), default=0.0),
@@ -159,13 +162,14 @@ def compare(scene: MjcfScene, commands: Sequence[Command] | None = None, setting
 
 
 def plot_png(result: Comparison) -> bytes:
-    """PNG of the lower-face centroid trajectories (mm) of every model."""
+    """PNG of the lower-face centroid trajectories (mm, world frame) and lower-face yaw
+    per command (degrees) of every model."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, (ax, ax_yaw) = plt.subplots(1, 2, figsize=(11, 5))
     first = next(iter(result.models.values()))
     drive_xy = np.array([[0.0, 0.0]] + [r.drive[:2] for r in first.steps]) * 1e3
     ax.plot(drive_xy[:, 0], drive_xy[:, 1], "k--", label="drive (upper face)")
@@ -173,12 +177,20 @@ def plot_png(result: Comparison) -> bytes:
         xy = np.array([[0.0, 0.0]] + [r.lower[:2] for r in run.steps]) * 1e3
         last = run.steps[-1]
         ax.plot(xy[:, 0], xy[:, 1], "o-", ms=3,
-                label=f"{name}: twist {math.degrees(last.twist):.2f}°, deviation {math.degrees(last.deviation):.2f}°")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
+                label=f"{name}: twist {math.degrees(last.twist):.2f}°, "
+                      f"deviation {math.degrees(last.deviation):.2f}°, yaw {math.degrees(last.lower_yaw):.3f}°")
+        ax_yaw.plot([0] + [r.step for r in run.steps], [0.0] + [math.degrees(r.lower_yaw) for r in run.steps],
+                    "o-", ms=3, label=name)
+    ax.set_xlabel("world x (mm)")
+    ax.set_ylabel("world y (mm)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title("lower-face centroid")
     ax.legend(fontsize=7)
+    ax_yaw.set_xlabel("command")
+    ax_yaw.set_ylabel("lower-face yaw (deg)")
+    ax_yaw.set_title("lower-face yaw")
+    ax_yaw.legend(fontsize=7)
+    fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)

@@ -4,7 +4,16 @@
 
 Each control period the gripper's motion becomes one upper-face
 ``fe_contact.Command``, run through :func:`pushplan.run.drive`; the FE lower-face pose
-(centroid displacement and best-fit yaw) is written into the MuJoCo block.
+(centroid displacement and best-fit yaw) is written into the MuJoCo block, and the FE
+forces where a MuJoCo controller reads them (world frame, N and N m):
+
+* ``data.xfrc_applied[block]``: the FE contact resultant the floor applies on the
+  block (``[0:3]``) and its moment about the block body's centre of mass (``[3:6]``);
+* ``data.userdata[0:9]`` (when the MJCF has ``<size nuserdata="9"/>`` or more), the
+  layout :data:`USERDATA_LAYOUT`: the force the gripper applies on the block's upper
+  face, the contact resultant and its moment about the centre of mass.
+
+MuJoCo's own ``data.contact`` forces on the block remain those of its rigid box.
 """
 
 from __future__ import annotations
@@ -24,10 +33,15 @@ from ..config.commands import command_to_dict
 from ..errors import InputError
 from ..run.driver import drive
 from ..run.summary import RunStatus, StepSummary
-from .frames import matrix_yaw, quat_mul, quat_z, rz
-from .mjmodel import find_object, frame_of, mocap_index, mujoco_module
+from .frames import matrix_yaw, rz
+from .mjmodel import find_object, frame_of, mocap_index, mujoco_module, object_name
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory
+
+
+USERDATA_LAYOUT = {"gripper_force": slice(0, 3), "contact_force": slice(3, 6), "contact_moment": slice(6, 9)}
+"""Where :class:`CoSimulation` writes the FE forces in ``data.userdata`` (world frame, N, N m)."""
+USERDATA_SIZE = 9
 
 
 class CoSimulation:
@@ -37,9 +51,11 @@ class CoSimulation:
     the gripper's displacement since the previous period into an upper-face
     :class:`fe_contact.Command`, steps the FE model and writes the block's
     resulting lower-face pose (centroid displacement and best-fit yaw) into the
-    MuJoCo block (free joint ``qpos`` with zero ``qvel``, or mocap pose).  Between
-    periods it re-writes that pose, so MuJoCo shows the FE prediction, not its own
-    rigid dynamics.  A failed FE step keeps the last good state and pose; the next
+    MuJoCo block (free joint ``qpos`` with zero ``qvel``, or mocap pose) and the FE
+    forces into ``data.xfrc_applied`` / ``data.userdata`` (module docstring; also kept
+    as :attr:`gripper_force`, :attr:`contact_force`, :attr:`contact_moment`, world
+    frame).  Between periods it re-writes pose and forces, so MuJoCo shows the FE
+    prediction, not its own rigid dynamics.  A failed FE step keeps the last good state and pose; the next
     period retries with the accumulated gripper motion.
 
     At construction the block is put at its reference (``qpos0``) pose and the FE
@@ -91,12 +107,16 @@ class CoSimulation:
         self._next = mj_data.time + self.control_period
         self.lower_displacement = np.zeros(3)  # FE frame, m
         self.lower_yaw = 0.0
+        self.gripper_force = np.zeros(3)  # world, N: gripper on the block's upper face
+        self.contact_force = np.zeros(3)  # world, N: floor on the block (FE contact resultant)
+        self.contact_moment = np.zeros(3)  # world, N m: about the block body's centre of mass
         self._write_pose()
         mj.mj_forward(mj_model, mj_data)
 
     def _attach_block(self, bid: int) -> None:
         """Where the block pose is written: its mocap slot, or its free joint's qpos / qvel."""
         mj, m = mujoco_module(), self.mj_model
+        self._bid = bid
         self._mocap = int(m.body_mocapid[bid])
         if self._mocap < 0:
             jnt = int(m.body_jntadr[bid])
@@ -116,14 +136,29 @@ class CoSimulation:
 
     def block_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World (pos (3,), quat (4,)) of the block body for the current FE lower-face pose."""
-        s = self.scene
-        R = rz(self.lower_yaw)
-        pos = s.lower_centre + s.to_world(self.lower_displacement) + R @ (s.body_pos - s.lower_centre)
-        return pos, quat_mul(quat_z(self.lower_yaw), s.body_quat)
+        return self.scene.body_pose(self.lower_displacement, self.lower_yaw)
+
+    def _measure_forces(self, rep: StepReport) -> None:
+        """The FE gripper force, contact resultant and its moment about the block's
+        centre of mass, world frame, from a converged step."""
+        mj, s = mujoco_module(), self.scene
+        mesh = self.model.mesh
+        points = s.lower_centre + s.to_world(mesh.nodes[mesh.lower] + rep.displacement[mesh.lower])
+        forces = s.to_world(rep.reaction_world)
+        pos, quat = self.block_pose()
+        com = np.zeros(3)
+        mj.mju_rotVecQuat(com, np.asarray(self.mj_model.body_ipos[self._bid], float), quat)
+        self.gripper_force = s.to_world(rep.upper_force)
+        self.contact_force = forces.sum(axis=0)
+        self.contact_moment = np.cross(points - (pos + com), forces).sum(axis=0)
 
     def _write_pose(self) -> None:
         pos, quat = self.block_pose()
         d = self.mj_data
+        d.xfrc_applied[self._bid] = np.concatenate([self.contact_force, self.contact_moment])
+        if self.mj_model.nuserdata >= USERDATA_SIZE:
+            for key, where in USERDATA_LAYOUT.items():
+                d.userdata[where] = getattr(self, key)
         if self._mocap >= 0:
             d.mocap_pos[self._mocap], d.mocap_quat[self._mocap] = pos, quat
         else:
@@ -152,6 +187,7 @@ class CoSimulation:
             self.state, self._last = run.state, (centre, yaw)
             self.lower_displacement = np.array(rep.lower_centroid, float)
             self.lower_yaw = float(rep.lower_yaw)
+            self._measure_forces(rep)
         self._next += self.control_period
         self._write_pose()
         mj.mj_forward(self.mj_model, self.mj_data)
@@ -161,28 +197,54 @@ class CoSimulation:
 
 @dataclass(frozen=True)
 class CosimPeriod:
-    """One control period of :func:`run_cosimulation` (world frame, m, rad).
+    """One control period of :func:`run_cosimulation`, MuJoCo world frame (m, rad, N).
 
     ``gripper_centre`` (3,) upper-face centre carried by the gripper at the period's
-    end; ``mujoco_lower_centre`` (3,) and ``mujoco_yaw`` the block pose MuJoCo shows."""
+    end; ``lower_centre`` (3,) and ``lower_yaw`` the FE lower-face pose (centre and
+    yaw); ``mujoco_lower_centre`` (3,) and ``mujoco_yaw`` the block pose MuJoCo shows;
+    ``gripper_force``, ``contact_force``, ``contact_moment`` (3,) what the coupler wrote
+    into MuJoCo (see the module docstring); ``boxes`` name -> (centre (3,), quat (4,),
+    half sizes (3,)) of every MuJoCo box geom (the recording draws them)."""
 
     period: int
     time: float
     report: StepReport
     gripper_centre: np.ndarray
+    lower_centre: np.ndarray
+    lower_yaw: float
     mujoco_lower_centre: np.ndarray
     mujoco_yaw: float
+    gripper_force: np.ndarray
+    contact_force: np.ndarray
+    contact_moment: np.ndarray
+    boxes: dict
     control_wall_s: float
 
     def to_dict(self) -> dict:
+        """World-frame poses and forces; the FE-frame command and pose under ``fe_frame``."""
         rep = self.report
         return {
             "period": self.period, "time": self.time, "status": rep.status.value,
-            "command": command_to_dict(rep.command), "fe_lower_centroid": rep.lower_centroid,
-            "fe_lower_yaw_deg": math.degrees(rep.lower_yaw), "fe_twist_deg": math.degrees(rep.twist),
+            "gripper_centre": self.gripper_centre, "lower_centre": self.lower_centre,
+            "lower_yaw_deg": math.degrees(self.lower_yaw), "twist_deg": math.degrees(rep.twist),
             "mujoco_lower_centre": self.mujoco_lower_centre, "mujoco_yaw_deg": math.degrees(self.mujoco_yaw),
+            "gripper_force": self.gripper_force, "contact_force": self.contact_force,
+            "contact_moment": self.contact_moment,
+            "fe_frame": {"command": command_to_dict(rep.command), "lower_centroid": rep.lower_centroid,
+                         "lower_yaw_deg": math.degrees(rep.lower_yaw)},
             "fe_step_s": rep.wall_time, "control_wall_s": self.control_wall_s,
         }
+
+
+def _boxes(m, d) -> dict:
+    """name -> (centre (3,), quat (4,), half sizes (3,)) of every box geom of ``m`` in ``d``."""
+    mj = mujoco_module()
+    out = {}
+    for g in np.flatnonzero(m.geom_type == mj.mjtGeom.mjGEOM_BOX):
+        quat = np.zeros(4)
+        mj.mju_mat2Quat(quat, d.geom_xmat[g])
+        out[object_name(m, mj.mjtObj.mjOBJ_GEOM, int(g))] = (d.geom_xpos[g].copy(), quat, m.geom_size[g].copy())
+    return out
 
 
 @dataclass(frozen=True)
@@ -253,8 +315,11 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
         if rep is None:  # a bug: control_period is a multiple of the timestep
             raise RuntimeError(f"no control step in period {k + 1}")
         low, _, yaw = block_geom_pose(m, d, scene)
-        periods.append(CosimPeriod(k + 1, float(d.time), rep, traj.upper_centre[k + 1], low, yaw,
-                                   coupler.step_wall[-1]))
+        periods.append(CosimPeriod(
+            k + 1, float(d.time), rep, traj.upper_centre[k + 1],
+            scene.lower_centre + scene.to_world(coupler.lower_displacement), scene.yaw + coupler.lower_yaw,
+            low, yaw, coupler.gripper_force.copy(), coupler.contact_force.copy(), coupler.contact_moment.copy(),
+            _boxes(m, d), coupler.step_wall[-1]))
         if not rep.converged:
             break
     record = CosimRecord(scene, gripper, control_period, n_sub, coupler.model, len(commands), tuple(periods),
@@ -265,10 +330,19 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
 
 
 def save_recording(path: Path, record: CosimRecord) -> None:
-    """Rerun recording of a co-simulation: the FE steps through
-    :class:`pushplan.outputs.recording.Recorder` (replayable), plus ``mujoco/gripper_centre``,
-    ``mujoco/block_lower_centre`` (Points3D) and ``plots/mujoco_yaw_deg`` (Scalars),
-    in the recorder's frame (the FE frame: lower face centred on the origin)."""
+    """Rerun recording of a co-simulation, in the MuJoCo world frame.
+
+    The FE steps go through :class:`pushplan.outputs.recording.Recorder` (replayable;
+    its ``world/...`` entities are in the FE frame, placed in the MuJoCo world by a static
+    ``Transform3D`` on ``world``).  ``world/mujoco`` undoes that transform, so its
+    children are in MuJoCo world coordinates: per period ``world/mujoco/<geom>`` draws
+    every MuJoCo box geom (``Boxes3D``), ``world/mujoco/gripper_centre`` the
+    gripper-carried upper-face centre, ``world/mujoco/fe_forces`` the FE contact
+    resultant and gripper force written into MuJoCo (``Arrows3D``, the largest of the run
+    as long as the block is high);
+    ``plots/mujoco_yaw_deg`` is the block yaw MuJoCo shows.  Timelines: the
+    recorder's ``step`` and ``load``, and ``sim_time`` (s of MuJoCo time, a duration).
+    """
     import rerun as rr
 
     from ..outputs.recording import Recorder
@@ -276,10 +350,25 @@ def save_recording(path: Path, record: CosimRecord) -> None:
     scene = record.scene
     with Recorder(path, f"cosim_{scene.scenario.name}", record.fe_model.mesh,
                   scenario=scene.scenario.to_dict()) as rec:
+        log = rec.stream.log
+        rec.stream.set_time("sim_time", duration=0.0)
+        place = {"translation": scene.lower_centre,
+                 "rotation": rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0], radians=scene.yaw)}
+        log("world", rr.Transform3D(**place), static=True)
+        log("world/mujoco", rr.Transform3D(**place, relation=rr.TransformRelation.ChildFromParent), static=True)
+        largest = max((np.linalg.norm(f) for p in record.periods for f in (p.contact_force, p.gripper_force)),
+                      default=0.0)
+        arrow = scene.scenario.size[2] / largest if largest > 0 else 0.0  # m per N
         for p in record.periods:
+            rec.stream.set_time("sim_time", duration=p.time)
             rep = p.report
             rec.log_step(rep, StepSummary.from_report(rep) if rep.converged else None)
-            rec.stream.log("mujoco/gripper_centre", rr.Points3D([scene.to_fe(p.gripper_centre - scene.lower_centre)]))
-            rec.stream.log("mujoco/block_lower_centre",
-                           rr.Points3D([scene.to_fe(p.mujoco_lower_centre - scene.lower_centre)]))
-            rec.stream.log("plots/mujoco_yaw_deg", rr.Scalars(math.degrees(p.mujoco_yaw - scene.yaw)))
+            for name, (centre, quat, half) in p.boxes.items():
+                log(f"world/mujoco/{name}", rr.Boxes3D(centers=[centre], half_sizes=[half],
+                                                 quaternions=[rr.Quaternion(xyzw=np.roll(quat, -1))]))
+            log("world/mujoco/gripper_centre", rr.Points3D([p.gripper_centre]))
+            log("world/mujoco/fe_forces", rr.Arrows3D(
+                origins=[p.lower_centre, p.gripper_centre],
+                vectors=arrow * np.array([p.contact_force, p.gripper_force]),
+                labels=["FE contact resultant", "FE gripper force"]))
+            log("plots/mujoco_yaw_deg", rr.Scalars(math.degrees(p.mujoco_yaw)))

@@ -9,6 +9,12 @@ MuJoCo facts this import rests on (MuJoCo 4.0, checked with ``data.contact``):
   built from the normal alone: ``t1 = world +y``, ``t2 = world -x`` whatever the yaw
   of either body.  :func:`scene_from_mjcf` reads the frame of the actual contacts
   and maps it to our ``(mu_x, mu_y, angle)`` in the block's own frame.
+* ``<custom><numeric name="pushplan_friction_angle" data="deg"/>`` turns those axes
+  about world z for the FE model (the floor's orthotropy axes at an angle without
+  yawing the box); MuJoCo's own contacts are not turned (its frame is fixed).
+* A box resting exactly at its half height may have no MuJoCo contact at ``qpos0``
+  (distance 0 rounds to +1e-19 m when yawed): the import looks for the contacts with
+  the block-floor margin raised to :data:`RESTING_GAP_REL` x the block height.
 
 Frames: the FE model (``fe_contact``) has the block's lower face on ``z = 0``
 centred on its origin, axes along the block's edges.  The MuJoCo block's reference
@@ -29,11 +35,19 @@ from fe_contact import SolverOptions
 from ..config.mujoco import BridgeSettings, bridge_settings
 from ..config.scenario import Scenario, load_scenario
 from ..errors import InputError
-from .frames import matrix_yaw, rz
+from .frames import matrix_yaw, quat_mul, quat_z, rz
 from .mjmodel import find_object, load_model, mujoco_module, object_name
 
 NUMERIC_YOUNG = "pushplan_young"
 NUMERIC_POISSON = "pushplan_poisson"
+NUMERIC_FRICTION_ANGLE = "pushplan_friction_angle"
+"""``<custom><numeric>``: world angle (deg, about +z from world x) of the friction axis
+that MuJoCo's ``<pair friction="f1 f2 ...">`` puts along world x (``f2``); ``f1`` acts
+90 deg further.  Absent: 0 (MuJoCo's own frame)."""
+RESTING_GAP_REL = 1e-6
+"""Gap between the block's lower face and the floor at ``qpos0``, as a fraction of the
+block height, still taken as resting contact (MuJoCo drops a contact at distance 0
+once rounding puts it at +1e-19 m: a yawed box at exactly its half height)."""
 DEFAULT_ELEMENTS = (8, 8, 4)
 DEFAULT_QUADRATURE = 2
 VERTICAL_TOL = 1e-9
@@ -104,6 +118,13 @@ class MjcfScene:
         """Rotate world vectors ``(..., 3)`` into the FE frame."""
         return np.asarray(v, float) @ rz(self.yaw)
 
+    def body_pose(self, lower_displacement, lower_yaw: float) -> tuple[np.ndarray, np.ndarray]:
+        """World (pos (3,), quat (4,)) of the block body for an FE lower-face pose:
+        centroid displacement (3,) in the FE frame (m) and yaw (rad) from the reference."""
+        pos = (self.lower_centre + self.to_world(lower_displacement)
+               + rz(lower_yaw) @ (self.body_pos - self.lower_centre))
+        return pos, quat_mul(quat_z(lower_yaw), self.body_quat)
+
     def mj_model(self, what: str):
         """The ``MjModel`` of :attr:`source`; ``what`` names the caller in the error.
 
@@ -154,18 +175,30 @@ def _block_ids(m, block: str) -> tuple[int, int]:
     return bid, int(boxes[0])
 
 
+def _numeric(m, name: str) -> float | None:
+    """The one finite number of ``<custom><numeric name=name>``, or None when absent.
+
+    Raises
+    ------
+    InputError
+        The numeric holds other than one finite number.
+    """
+    try:
+        data = np.asarray(m.numeric(name).data, float)
+    except KeyError:
+        return None
+    if data.size != 1 or not np.isfinite(data[0]):
+        raise InputError(f"<numeric name={name!r}> must hold one finite number, got {data.tolist()}")
+    return float(data[0])
+
+
 def _material(m, base: Scenario | None, from_mjcf: dict, not_from: dict) -> tuple[float, float]:
     """(young Pa, poisson) from ``<numeric>`` fields, else from ``base``; records where from."""
     out = {}
     for key, numeric in (("young", NUMERIC_YOUNG), ("poisson", NUMERIC_POISSON)):
-        try:
-            data = np.asarray(m.numeric(numeric).data, float)
-        except KeyError:
-            data = None
-        if data is not None:
-            if data.size != 1 or not np.isfinite(data[0]):
-                raise InputError(f"<numeric name={numeric!r}> must hold one finite number, got {data.tolist()}")
-            out[key] = float(data[0])
+        value = _numeric(m, numeric)
+        if value is not None:
+            out[key] = value
             from_mjcf[f"material.{key}"] = f"<numeric name='{numeric}'>"
         elif base is not None:
             out[key] = getattr(base, key)
@@ -181,15 +214,33 @@ def _material(m, base: Scenario | None, from_mjcf: dict, not_from: dict) -> tupl
     return out["young"], out["poisson"]
 
 
-def _contact(m, d, bgeom: int, fgeom: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """(frame (3, 3), friction (5,), condim) shared by the block-floor contacts at qpos0."""
+def _resting_contacts(m, d, bgeom: int, fgeom: int) -> None:
+    """``mj_forward`` at ``qpos0`` with the block-floor margin raised to
+    :data:`RESTING_GAP_REL` x the block height (the model's margins are restored)."""
     mj = mujoco_module()
+    tol = RESTING_GAP_REL * 2.0 * float(m.geom_size[bgeom][2])
+    pairs = [i for i in range(m.npair) if sorted((m.pair_geom1[i], m.pair_geom2[i])) == sorted((bgeom, fgeom))]
+    saved = m.geom_margin[bgeom].copy(), m.pair_margin[pairs].copy()
+    m.geom_margin[bgeom] = max(float(saved[0]), tol)
+    m.pair_margin[pairs] = np.maximum(saved[1], tol)
+    try:
+        mj.mj_forward(m, d)
+    finally:
+        m.geom_margin[bgeom], m.pair_margin[pairs] = saved
+
+
+def _contact(m, d, bgeom: int, fgeom: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """(frame (3, 3), friction (5,), condim) shared by the block-floor contacts at qpos0,
+    found within :data:`RESTING_GAP_REL` of the block height."""
+    mj = mujoco_module()
+    _resting_contacts(m, d, bgeom, fgeom)
     geoms = np.sort(np.asarray(d.contact.geom[: d.ncon]).reshape(-1, 2), axis=1)
     mine = np.flatnonzero((geoms == sorted((bgeom, fgeom))).all(axis=1))
     if mine.size == 0:
         raise InputError(
             f"block geom {object_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} does not touch floor "
-            f"{object_name(m, mj.mjtObj.mjOBJ_GEOM, fgeom)!r} at qpos0; rest the block on the floor"
+            f"{object_name(m, mj.mjtObj.mjOBJ_GEOM, fgeom)!r} at qpos0 (gap tolerance {RESTING_GAP_REL:g} x the "
+            "block height); rest the block on the floor"
         )
     frames = np.asarray(d.contact.frame[: d.ncon])[mine].reshape(-1, 3, 3)
     fric = np.asarray(d.contact.friction[: d.ncon])[mine]
@@ -216,9 +267,15 @@ def _friction(m, d, bgeom: int, fgeom: int, yaw: float, notes: list) -> tuple[fl
         return 0.0, 0.0, 0.0, pair
     if dim > 3:
         notes.append(f"condim = {dim}: torsional/rolling friction {f[2:].tolist()} has no FE counterpart (ignored)")
-    # tangents in the FE frame; t_x is the one nearer the block's x edge
-    t1 = frame[1] @ rz(yaw)
-    t2 = frame[2] @ rz(yaw)
+    turn = _numeric(m, NUMERIC_FRICTION_ANGLE)
+    if turn is not None:
+        notes.append(f"friction axes turned by {turn:g} deg in the FE model (<numeric name="
+                     f"'{NUMERIC_FRICTION_ANGLE}'>); MuJoCo's own contacts keep f2 along world x")
+    # tangents (turned by the numeric's angle about world z) in the FE frame;
+    # t_x is the one nearer the block's x edge
+    turned = rz(math.radians(turn or 0.0))
+    t1 = (turned @ frame[1]) @ rz(yaw)
+    t2 = (turned @ frame[2]) @ rz(yaw)
     if abs(t1[0]) >= abs(t2[0]):
         mu_x, mu_y, tx = float(f[0]), float(f[1]), t1
     else:
@@ -278,8 +335,9 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
         Plane geom name; its normal must be world +z.
     base : Scenario, optional
         Supplies what the MJCF cannot (mesh, quadrature, solver, load steps) and the
-        material when the MJCF has no ``<custom><numeric name="pushplan_young">`` /
-        ``"pushplan_poisson"``.  MJCF values replace the base's size and friction
+        material when the MJCF has no ``<custom><numeric name="pushplan_young">`` (Pa) /
+        ``"pushplan_poisson"``.  ``"pushplan_friction_angle"`` (deg) turns the friction
+        axes (see the module docstring).  MJCF values replace the base's size and friction
         (differences are listed in ``notes``).
 
     Returns
@@ -297,18 +355,21 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
     bbody, bgeom = _block_ids(m, block)
     fgeom = find_object(m, mj.mjtObj.mjOBJ_GEOM, floor, "floor geom")
     d = mj.MjData(m)
-    mj.mj_forward(m, d)
+    mj.mj_forward(m, d)  # kinematics; the contacts are found in _friction (resting-gap tolerance)
     size, yaw, lower = _box_on_plane(m, d, bgeom, fgeom, floor)
     notes: list[str] = []
     mu_x, mu_y, angle, pair = _friction(m, d, bgeom, fgeom, yaw, notes)
     from_mjcf = {"block.size": f"box geom {object_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} (2 x size)", **FROM_MJCF}
+    if _numeric(m, NUMERIC_FRICTION_ANGLE) is not None:
+        from_mjcf["friction.angle_deg"] += f", turned by <numeric name='{NUMERIC_FRICTION_ANGLE}'>"
     not_from: dict[str, str] = {}
     material = _material(m, base, from_mjcf, not_from)
     not_from.update(dict.fromkeys(("block.elements", "block.quadrature", "solver", "load"),
                                   "scenario" if base is not None else "default"))
     scenario = _scenario(path, base, size, (mu_x, mu_y, angle), material, notes)
-    if abs(d.geom_xpos[bgeom][2] - size[2] / 2 - d.geom_xpos[fgeom][2]) > 1e-9 * size[2]:
-        notes.append("block lower face is not exactly on the floor at qpos0; the FE model starts in contact")
+    gap = d.geom_xpos[bgeom][2] - size[2] / 2 - d.geom_xpos[fgeom][2]
+    if abs(gap) > 1e-9 * size[2]:
+        notes.append(f"block lower face is {gap:.3g} m from the floor at qpos0; the FE model starts in contact")
     notes.append("MuJoCo contact softness (solref, solimp, margin) has no FE counterpart")
     return MjcfScene(
         scenario=scenario, source=path,

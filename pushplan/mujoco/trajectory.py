@@ -1,14 +1,21 @@
 """Gripper trajectories: the mocap knots that carry the block's upper face through a
-command list, and their export for MuJoCo.
+command list, the FE block pose at each knot, and their export for MuJoCo.
 
-``export_plan`` writes ``.npz`` files with
+Knot 0 is the reference pose; knot k is reached at the end of command k; all poses
+are MuJoCo world frame (m, quaternions w, x, y, z, rad).  ``export_plan`` writes
 
-``time`` (K+1,) s; ``mocap_pos`` (K+1, 3) m and ``mocap_quat`` (K+1, 4) (w, x, y, z)
-of the gripper mocap body; ``upper_centre`` (K+1, 3) m and ``upper_yaw`` (K+1,) rad of
-the block's upper-face centre carried by the gripper; ``gripper`` (name).  Knot 0 is
-the reference pose; knot k is reached at the end of command k.  An ``.xml`` export
-is an MJCF file with one ``<key>`` per knot (``mpos``/``mquat`` of every mocap
-body), for ``<include file="..."/>`` in the scene.
+* ``.npz``: ``time`` (K+1,) s; ``mocap_pos`` (K+1, 3) and ``mocap_quat`` (K+1, 4) of
+  the gripper mocap body; ``upper_centre`` (K+1, 3) and ``upper_yaw`` (K+1,) of the
+  block's upper-face centre carried by the gripper; ``block_pos`` (K+1, 3) and
+  ``block_quat`` (K+1, 4) of the block body and ``lower_centre`` (K+1, 3) /
+  ``lower_yaw`` (K+1,) of its lower face, from the FE model driven by the commands;
+  ``gripper`` (name).
+* ``.csv``: one row per knot, a header line naming the columns :data:`CSV_COLUMNS`
+  (the ``.npz`` arrays flattened: ``mocap_pos`` -> ``mocap_x, mocap_y, mocap_z``, ...).
+* ``.xml``: an MJCF file with one ``<key>`` per knot: ``mpos`` / ``mquat`` of every
+  mocap body (the gripper's from the plan) and ``qpos`` (the model's ``qpos0`` with the
+  block's free joint at the FE pose; a mocap block goes into ``mpos`` / ``mquat``), for
+  ``<include file="..."/>`` in the scene.
 """
 
 from __future__ import annotations
@@ -20,13 +27,23 @@ from typing import Sequence
 
 import numpy as np
 
-from fe_contact import Command
+from fe_contact import Command, Model
 
-from ..errors import InputError
+from ..errors import InputError, SolverFailure
 from ..outputs.atomic import atomic_write_bytes, atomic_write_npz
+from ..run.driver import drive
 from .frames import matrix_yaw, quat_mul, quat_z, rz
-from .mjmodel import mocap_index, mujoco_module
+from .mjmodel import find_object, mocap_index, mujoco_module
 from .scene import MjcfScene
+
+CSV_COLUMNS = (
+    "time",
+    "mocap_x", "mocap_y", "mocap_z", "mocap_qw", "mocap_qx", "mocap_qy", "mocap_qz",
+    "upper_x", "upper_y", "upper_z", "upper_yaw",
+    "block_x", "block_y", "block_z", "block_qw", "block_qx", "block_qy", "block_qz",
+    "lower_x", "lower_y", "lower_z", "lower_yaw",
+)
+"""Columns of the ``.csv`` export: s, m, rad, MuJoCo world frame (see the module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -87,42 +104,106 @@ def gripper_trajectory(scene: MjcfScene, mj_model, commands: Sequence[Command], 
     return GripperTrajectory(times, pos, quat, centre, yaw, gripper)
 
 
-def keyframes_mjcf(m, traj: GripperTrajectory) -> str:
+@dataclass(frozen=True)
+class BlockKnots:
+    """The FE block pose at each knot, world frame: body ``pos`` (K+1, 3), ``quat``
+    (K+1, 4), lower-face centre ``lower_centre`` (K+1, 3) m and ``lower_yaw`` (K+1,) rad."""
+
+    pos: np.ndarray
+    quat: np.ndarray
+    lower_centre: np.ndarray
+    lower_yaw: np.ndarray
+
+
+def block_knots(scene: MjcfScene, fe_model: Model, commands: Sequence[Command]) -> BlockKnots:
+    """The block pose at each knot: ``fe_model`` driven by ``commands``, its lower-face
+    pose carried into the world by the scene's reference pose.
+
+    Raises
+    ------
+    SolverFailure
+        An FE step did not converge.
+    """
+    run = drive(fe_model, list(commands))
+    if not run.completed:
+        raise SolverFailure(f"FE step {len(run.reports)} failed: {run.reports[-1].message}")
+    disp = np.vstack([np.zeros(3)] + [np.asarray(r.lower_centroid, float) for r in run.reports])
+    yaw = np.concatenate([[0.0], [float(r.lower_yaw) for r in run.reports]])
+    poses = [scene.body_pose(u, a) for u, a in zip(disp, yaw)]
+    return BlockKnots(np.array([p for p, _ in poses]), np.array([q for _, q in poses]),
+                      scene.lower_centre + scene.to_world(disp), scene.yaw + yaw)
+
+
+def keyframes_mjcf(m, traj: GripperTrajectory, scene: MjcfScene, block: BlockKnots) -> str:
     """MJCF text with one ``<key>`` per knot of ``traj``: ``mpos`` / ``mquat`` of every
-    mocap body of ``m``, the gripper's from ``traj``, the others at their model pose."""
+    mocap body of ``m`` (the gripper's from ``traj``, the others at their model pose) and
+    ``qpos`` (``qpos0`` with the block's free joint, or its mocap slot, at ``block``)."""
+    mj = mujoco_module()
     mocap_bodies = np.flatnonzero(m.body_mocapid >= 0)
     order = mocap_bodies[np.argsort(m.body_mocapid[mocap_bodies])]
     mine = mocap_index(m, traj.gripper)
+    bid = find_object(m, mj.mjtObj.mjOBJ_BODY, scene.block_body, "block body")
+    block_mocap, jnt = int(m.body_mocapid[bid]), int(m.body_jntadr[bid])
+    free = block_mocap < 0 and m.body_jntnum[bid] == 1 and m.jnt_type[jnt] == mj.mjtJoint.mjJNT_FREE
     fmt = lambda a: " ".join(f"{v:.17g}" for v in a.ravel())  # noqa: E731
     lines = [f'<mujoco model="{traj.gripper}_plan">',
-             "  <!-- pushplan gripper trajectory: include in the scene -->", "  <keyframe>"]
+             "  <!-- pushplan plan: gripper mocap and FE block pose per knot; include in the scene -->",
+             "  <keyframe>"]
     for k in range(traj.time.size):
         mpos = np.array(m.body_pos[order], float)
         mquat = np.array(m.body_quat[order], float)
         mpos[mine], mquat[mine] = traj.mocap_pos[k], traj.mocap_quat[k]
-        lines.append(f'    <key name="plan_{k:03d}" time="{traj.time[k]:.17g}" '
+        qpos = np.array(m.qpos0, float)
+        if block_mocap >= 0:
+            mpos[block_mocap], mquat[block_mocap] = block.pos[k], block.quat[k]
+        elif free:
+            a = int(m.jnt_qposadr[jnt])
+            qpos[a:a + 3], qpos[a + 3:a + 7] = block.pos[k], block.quat[k]
+        qattr = f' qpos="{fmt(qpos)}"' if qpos.size else ""
+        lines.append(f'    <key name="plan_{k:03d}" time="{traj.time[k]:.17g}"{qattr} '
                      f'mpos="{fmt(mpos)}" mquat="{fmt(mquat)}"/>')
     lines += ["  </keyframe>", "</mujoco>", ""]
     return "\n".join(lines)
 
 
+def _csv(traj: GripperTrajectory, block: BlockKnots) -> bytes:
+    """The ``.csv`` export: a header of :data:`CSV_COLUMNS`, one row per knot."""
+    table = np.column_stack([traj.time, traj.mocap_pos, traj.mocap_quat, traj.upper_centre, traj.upper_yaw,
+                             block.pos, block.quat, block.lower_centre, block.lower_yaw])
+    rows = [",".join(CSV_COLUMNS)] + [",".join(f"{v:.17g}" for v in row) for row in table]
+    return ("\n".join(rows) + "\n").encode()
+
+
 def export_plan(path, scene: MjcfScene, commands: Sequence[Command], gripper: str = "gripper",
-                control_period: float = 0.05) -> Path:
-    """Write the gripper trajectory of a plan as ``.npz`` or MJCF ``<keyframe>`` ``.xml``.
+                control_period: float = 0.05, fe_model: Model | None = None) -> Path:
+    """Write a plan as ``.npz``, ``.csv`` or MJCF ``<keyframe>`` ``.xml`` (see the module
+    docstring): the gripper trajectory and the FE block pose at each knot.
+
+    Parameters
+    ----------
+    fe_model : fe_contact.Model, optional
+        Gives the block pose; defaults to ``scene.scenario.model()``.
 
     Raises
     ------
     InputError
         Unknown suffix, or the scene source is not a file (for the mocap layout).
+    SolverFailure
+        An FE step did not converge.
     """
     path = Path(path)
-    if path.suffix.lower() not in (".npz", ".xml"):
-        raise InputError(f"plan export must be .npz or .xml, got {path.name}")
+    suffix = path.suffix.lower()
+    if suffix not in (".npz", ".csv", ".xml"):
+        raise InputError(f"plan export must be .npz, .csv or .xml, got {path.name}")
     m = scene.mj_model("export_plan")
     traj = gripper_trajectory(scene, m, commands, gripper, control_period)
-    if path.suffix.lower() == ".npz":
+    block = block_knots(scene, fe_model or scene.scenario.model(), commands)
+    if suffix == ".npz":
         return atomic_write_npz(
             path, time=traj.time, mocap_pos=traj.mocap_pos, mocap_quat=traj.mocap_quat,
-            upper_centre=traj.upper_centre, upper_yaw=traj.upper_yaw, gripper=np.array(gripper),
+            upper_centre=traj.upper_centre, upper_yaw=traj.upper_yaw, block_pos=block.pos, block_quat=block.quat,
+            lower_centre=block.lower_centre, lower_yaw=block.lower_yaw, gripper=np.array(gripper),
         )
-    return atomic_write_bytes(path, keyframes_mjcf(m, traj).encode())
+    if suffix == ".csv":
+        return atomic_write_bytes(path, _csv(traj, block))
+    return atomic_write_bytes(path, keyframes_mjcf(m, traj, scene, block).encode())
