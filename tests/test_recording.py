@@ -151,6 +151,7 @@ def test_replay_recording_reproduces(files, capsys):
     printed = capsys.readouterr().out
     dev = float(re.search(r"max lower-face deviation from aniso: (\S+) m", printed).group(1))
     assert dev <= REPLAY_TOL
+    assert f"{N_STEPS} steps compared" in printed  # not "step 1 of 5 compared" (issue 22)
     a = np.array([s["lower_centroid"] for s in summary_steps(files["run"])])
     b = np.array([s["lower_centroid"] for s in summary_steps(out)])
     assert np.abs(a - b).max() <= REPLAY_TOL
