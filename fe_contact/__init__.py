@@ -14,6 +14,7 @@ This package knows nothing about planning, robots, MuJoCo or rerun.
 
 from .elasticity import Material
 from .friction import project_elliptic_cone
+from .loads import GRAVITY, Gripper
 from .local_solver import solve_local
 from .mesh import BlockMesh, block_mesh
 from .model import (
@@ -30,16 +31,21 @@ from .model import (
     build_model,
     initial_state,
 )
+from .release import Release, ReleaseSchedule, run_release
 from .step import run, step
 
 __all__ = [
     "BlockMesh",
     "Command",
     "Friction",
+    "GRAVITY",
+    "Gripper",
     "IterLog",
     "Material",
     "Model",
     "NodeStatus",
+    "Release",
+    "ReleaseSchedule",
     "SolverOptions",
     "State",
     "Status",
@@ -50,6 +56,7 @@ __all__ = [
     "initial_state",
     "project_elliptic_cone",
     "run",
+    "run_release",
     "solve_local",
     "step",
 ]
