@@ -42,8 +42,15 @@ def cmd_plan(args) -> int:
         write_recording(result, out / "recording.rrd", scenario.model())
         wrote.append(out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")
-    print(f"  planned final error (FE, verification mesh): {_describe(doc['final_error'])}")
-    print(f"  naive final error   (FE, verification mesh): {_describe(doc['naive']['final_error'])}")
+    state = spec.target_state
+    print(f"  target: the lower-face pose {'at rest after the release' if state == 'rest' else 'under load'}")
+    for name in ("loaded", "rest"):
+        plan_pose, naive_pose = doc["final_poses"][name], doc["naive"]["final_poses"][name]
+        if plan_pose is None:
+            continue
+        mark = " (the target's)" if name == state else ""
+        print(f"  planned error {name:>6}{mark} (FE, verification mesh): {_describe(plan_pose['error'])}")
+        print(f"  naive error   {name:>6}{mark} (FE, verification mesh): {_describe(naive_pose['error'])}")
     print(f"  FE rollouts: planning {result.rollouts['planning']}, verification {result.rollouts['verification']}; "
           f"plan time {result.timings['total']:.2f} s")
     print("  wrote " + ", ".join(str(p) for p in wrote))

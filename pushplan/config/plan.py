@@ -16,6 +16,9 @@ applied before the planned commands; the ``[plan]`` table reads (SI units)::
     planning_elements = [6, 6, 2]
     planning_quadrature = 2
     max_rollouts = 6           # FE rollouts per mesh in the correction loop
+    target_state = "rest"      # "loaded": the lower face while the gripper still holds it after the
+                               # last command; "rest": where it comes to rest after the scenario's
+                               # [release] (default when there is one; needs one)
 
 :func:`parse_plan` gives a :class:`PlanSpec`; ``parse_plan`` of a scenario whose
 ``[plan]`` is ``spec.to_table()`` gives ``spec`` back.
@@ -35,8 +38,9 @@ from .validate import Table, count
 
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
-    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts",
+    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "target_state",
 })
+TARGET_STATES = ("loaded", "rest")
 REQUIRED_KEYS = frozenset({"x", "y", "steps", "max_step"})
 DEFAULT_TOLERANCE_REL = 0.0025
 """Default position tolerance as a fraction of the travel distance."""
@@ -66,6 +70,7 @@ class PlanSpec:
     planning_elements: tuple[int, int, int]
     planning_quadrature: int
     max_rollouts: int
+    target_state: str = "loaded"
 
     @property
     def travel(self) -> float:
@@ -90,7 +95,7 @@ class PlanSpec:
             "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
             "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
             "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-            "travel": self.travel,
+            "travel": self.travel, "target_state": self.target_state,
         }
 
     def to_table(self) -> dict:
@@ -98,7 +103,8 @@ class PlanSpec:
         table = {"x": self.target[0], "y": self.target[1], "steps": self.steps, "max_step": self.max_step,
                  "tolerance": self.tolerance, "yaw_tolerance_deg": degrees_exact(self.yaw_tolerance),
                  "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
-                 "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts}
+                 "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
+                 "target_state": self.target_state}
         if self.yaw_targeted:
             table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
         return table
@@ -159,6 +165,9 @@ def parse_plan(scenario: Scenario) -> PlanSpec:
         tolerance = DEFAULT_TOLERANCE_REL * travel
     else:
         raise InputError("plan.tolerance is required when the target position is the start (x = y = 0)")
+    target_state = t.choice("target_state", TARGET_STATES, "rest" if scenario.release else "loaded")
+    if target_state == "rest" and scenario.release is None:
+        raise InputError('plan.target_state = "rest" needs a [release] table (how the gripper lets go)')
     return PlanSpec(
         target=(x, y, yaw), yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
         tolerance=tolerance,
@@ -167,4 +176,5 @@ def parse_plan(scenario: Scenario) -> PlanSpec:
         planning_elements=t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS)),
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=1, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1),
+        target_state=target_state,
     )
