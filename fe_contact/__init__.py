@@ -8,6 +8,11 @@ Public API::
     model = Model(block_mesh(size, divisions), Material(E, nu), Friction(mu_x, mu_y, angle))
     state = initial_state(model)
     state, report = step(model, state, Command(dz=-1e-4))
+    state, reports = run_release(model, state, Release("lift", 5), step, report)
+
+Beyond the paper: ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
+``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper, and
+:mod:`fe_contact.release` lets go of the block (``lift`` or ``open``).
 
 This package knows nothing about planning, robots, MuJoCo or rerun.
 """
