@@ -53,13 +53,18 @@ class Material:
         Young's modulus E, Pa; finite and > 0.
     poisson : float
         Poisson's ratio nu, in (-1, 0.5).
+    density : float
+        Mass density rho, kg/m^3, >= 0; the block's self-weight ``rho g`` is
+        the body force ``f0`` of the paper's eq. (3) (:mod:`fe_contact.loads`).
+        0 (default) is the paper's weightless block.
     """
 
     young: float
     poisson: float
+    density: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("young", "poisson"):
+        for name in ("young", "poisson", "density"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real):
                 raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -68,6 +73,8 @@ class Material:
             raise ValueError(f"young must be finite and > 0, got {self.young}")
         if not -1.0 < self.poisson < 0.5:
             raise ValueError(f"poisson must lie in (-1, 0.5), got {self.poisson}")
+        if not np.isfinite(self.density) or self.density < 0.0:
+            raise ValueError(f"density must be finite and >= 0, got {self.density}")
 
     @property
     def lame_lambda(self) -> float:
@@ -415,6 +422,7 @@ def internal_force_and_tangent(
     U,
     material: Material,
     pattern: SparsityPattern,
+    tension_only_geometric: bool = False,
 ) -> tuple[np.ndarray, sp.csr_matrix, float]:
     """Internal forces and the consistent tangent stiffness ``d f_int / dU``.
 
@@ -427,6 +435,13 @@ def internal_force_and_tangent(
     material : Material
     pattern : SparsityPattern
         From :func:`fe_contact.assembly.sparsity_pattern` for ``elements``.
+    tension_only_geometric : bool
+        Build the geometric stiffness with the positive part of ``S`` only
+        (per Gauss point, ``S_+ = V max(Lambda, 0) V^T``): a positive
+        semi-definite tangent for a free, prestressed block whose consistent
+        tangent is indefinite in its rigid rotations (an open release,
+        :mod:`fe_contact.release`).  Not the consistent tangent: Newton
+        converges linearly with it, to the same solution.
 
     Returns
     -------
@@ -460,5 +475,9 @@ def internal_force_and_tangent(
     def per_point(A):  # component-major (3, 3, e q) -> (e, q, 3, 3)
         return np.ascontiguousarray(A.reshape(3, 3, n_elems, n_qp).transpose(2, 3, 0, 1))
 
-    K = assemble_matrix(pattern, _element_tangents(geometry, _I3 + per_point(H), per_point(S), material))
+    S_points = per_point(S)
+    if tension_only_geometric:
+        lam, vec = np.linalg.eigh(S_points)
+        S_points = np.einsum("eqij,eqj,eqkj->eqik", vec, np.maximum(lam, 0.0), vec)
+    K = assemble_matrix(pattern, _element_tangents(geometry, _I3 + per_point(H), S_points, material))
     return f_int, K, _min_det(H)

@@ -7,7 +7,10 @@ displacement increment over the step, m (world x, y):
     pressure     p_i = r_n / A_i                          (A_i tributary area, m^2)
     gap          g_i = Z_i + u_z                          (m)
     dissipation  D = - sum_i r_t,i . (T_t du_i)           (J, >= 0 for a dissipative law)
-    equilibrium  |sum_i T^T r_i + f_upper| / force scale  (f_upper the drive's force, N)
+    equilibrium  |sum_i T^T r_i + f_upper + W - f_reg| / force scale
+                 (f_upper the gripper's force on the upper face, W the weight
+                 vector, f_reg the total regularising spring force, N)
+    strain energy  int (lambda/2 tr(E)^2 + mu E:E) dV     (J)
 
 A node is separated when ``r_n <= SEPARATION_FORCE max |r|`` and slipping when
 in contact and ``|du_i| > SLIP_DISPLACEMENT max(block size)``; otherwise it
@@ -21,6 +24,8 @@ import time
 
 import numpy as np
 
+from .elasticity import stored_energy
+from .loads import NO_LOADING, Loading
 from .model import Command, Model, NodeStatus, State, StepReport
 from .newton import Equilibrium
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
@@ -44,10 +49,14 @@ def node_status(model: Model, r: np.ndarray, slip_inc: np.ndarray) -> np.ndarray
     return status.astype(np.int8)
 
 
-def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: float) -> StepReport:
+def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: float,
+            loading: Loading = NO_LOADING, extra: dict | None = None) -> StepReport:
     """The :class:`~fe_contact.model.StepReport` of a step from ``state`` under
     ``command`` that ended in ``eq``; ``t0`` is the ``time.perf_counter()`` at
-    its start."""
+    its start.  ``loading`` is the step's applied loads; ``extra`` holds report
+    fields the caller knows better (``upper_force`` of a released upper face,
+    ``gripper_force``, ``plate``, ``grip``)."""
+    extra = dict(extra or {})
     mesh, lower, T = model.mesh, model.mesh.lower, model.frame
     U, r = eq.displacement, eq.reaction
     contact_world = r @ T
@@ -58,9 +67,15 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     X_lower = mesh.nodes[lower]
     f_int = eq.internal_force
     upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+    upper_force = extra.pop("upper_force", upper_force)
     total_contact = contact_world.sum(axis=0)
     force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
-    eq_err = float(np.linalg.norm(total_contact + upper_force) / force_scale) if force_scale > 0 else 0.0
+    balance = total_contact + upper_force
+    spring_f = loading.spring_force(U)
+    if model.body_force is not None or loading.spring is not None:
+        balance = balance - spring_f.reshape(-1, 3).sum(axis=0)
+        balance[2] -= model.weight
+    eq_err = float(np.linalg.norm(balance) / force_scale) if force_scale > 0 else 0.0
     logs = eq.iterations
     return StepReport(
         status=eq.status,
@@ -95,4 +110,20 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         iterations=tuple(logs),
         tangent_updates=eq.tangent_updates,
         timings=eq.timings,
+        strain_energy=stored_energy(model.geometry, mesh.elements, U, model.material)
+        if np.all(np.isfinite(U)) else float("nan"),
+        gripper_force=extra.pop("gripper_force", _drive_wrench(model, U, f_int)),
+        plate=extra.pop("plate", np.array(state.plate)),
+        weight=model.weight,
+        grip=extra.pop("grip", state.grip),
+        regularisation_force=float(np.linalg.norm(spring_f)),
     )
+
+
+def _drive_wrench(model: Model, U: np.ndarray, f_eff) -> np.ndarray:
+    """In-plane force and moment about the plate's centre (3,), N, N, N m, that
+    the upper-face drive applies on the block (zeros for a released face)."""
+    if f_eff is None or model.upper_dofs.size == 0:
+        return np.zeros(3)
+    from .gripper import plate_wrench
+    return plate_wrench(model, U, f_eff[model.upper_dofs].reshape(-1, 3))

@@ -11,7 +11,6 @@ can branch from any state.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, field
 
@@ -20,9 +19,11 @@ import numpy as np
 from .assembly import SparsityPattern, sparsity_pattern
 from .elasticity import ElementGeometry, Material, element_geometry
 from .cholesky import SupernodalStructure, supernodal_structure
+from .loads import Gripper, body_force, diagonal_positions, nodal_volumes
 from .mesh import BlockMesh, face_tributary_areas, nested_dissection_parts
 
 from .local_solver import METHODS as LOCAL_METHODS
+from .report import IterLog, NodeStatus, Status, StepReport  # noqa: F401  (re-exported)
 
 
 def _finite(name: str, value: float) -> float:
@@ -94,6 +95,10 @@ class SolverOptions:
     refresh_ratio : float
         Contraction factor of the relative residual above which a reused
         tangent may be recomputed.
+    release_stiffness : float
+        ``beta`` of the regularising springs of an open release, as a fraction
+        of the block's shear stiffness (:mod:`fe_contact.loads`); smaller is
+        closer to the quasi-static limit and needs more settle steps.
     """
 
     local_method: str = "newton"
@@ -103,6 +108,7 @@ class SolverOptions:
     newton_max_iter: int = 30
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
+    release_stiffness: float = 0.1
 
     def __post_init__(self):
         if self.local_method not in LOCAL_METHODS:
@@ -116,6 +122,8 @@ class SolverOptions:
         v = _finite("refresh_ratio", self.refresh_ratio)
         if not 0 < v < 1:
             raise ValueError(f"refresh_ratio must be in (0, 1), got {v}")
+        if not _finite("release_stiffness", self.release_stiffness) > 0:
+            raise ValueError(f"release_stiffness must be > 0, got {self.release_stiffness}")
         for name in ("local_max_iter", "newton_max_iter"):
             v = getattr(self, name)
             if v is None and name == "local_max_iter":
@@ -149,6 +157,9 @@ class Model:
     friction: Friction
     quadrature: int = 3
     options: SolverOptions = field(default_factory=SolverOptions)
+    gripper: Gripper = field(default_factory=Gripper)
+    hold_upper: bool = True
+    """False: the upper face is free (a released block), every dof is free."""
     geometry: ElementGeometry = field(init=False, repr=False)
     pattern: SparsityPattern = field(init=False, repr=False)
     free_dofs: np.ndarray = field(init=False, repr=False)
@@ -163,6 +174,12 @@ class Model:
     """(n_lower,) tributary area of each contact node, m^2."""
     upper_area: np.ndarray = field(init=False, repr=False)
     """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
+    nodal_volume: np.ndarray = field(init=False, repr=False)
+    """(n_nodes,) consistent nodal volumes, m^3 (:func:`fe_contact.loads.nodal_volumes`)."""
+    body_force: np.ndarray | None = field(init=False, repr=False)
+    """(n_dofs,) self-weight, N, or None when ``material.density == 0``."""
+    diagonal: np.ndarray = field(init=False, repr=False)
+    """(n_dofs,) CSR data positions of the stiffness's diagonal."""
     factor_structure: SupernodalStructure | None = field(init=False, repr=False)
     """Symbolic multifrontal Cholesky factorisation of the free-dof stiffness:
     nested dissection of the interior, the contact dofs last in ``lower_dofs``
@@ -176,6 +193,8 @@ class Model:
             raise ValueError(f"material must be a Material, got {type(self.material).__name__}")
         if not isinstance(self.friction, Friction):
             raise ValueError(f"friction must be a Friction, got {type(self.friction).__name__}")
+        if not isinstance(self.gripper, Gripper):
+            raise ValueError(f"gripper must be a Gripper, got {type(self.gripper).__name__}")
         if self.quadrature not in (2, 3):
             # one point per element leaves the hex8 hourglass modes without
             # stiffness: K_ff is singular and the flexibility matrix meaningless
@@ -188,6 +207,8 @@ class Model:
         set_(self, "geometry", element_geometry(mesh, self.quadrature))
         set_(self, "pattern", sparsity_pattern(mesh.elements, mesh.n_nodes))
         upper_dofs = (3 * mesh.upper[:, None] + np.arange(3)).ravel()
+        if not self.hold_upper:
+            upper_dofs = upper_dofs[:0]
         mask = np.ones(mesh.n_dofs, dtype=bool)
         mask[upper_dofs] = False
         set_(self, "upper_dofs", upper_dofs)
@@ -196,6 +217,11 @@ class Model:
         set_(self, "frame", local_frame(self.friction.angle))
         set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
         set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
+        set_(self, "nodal_volume", nodal_volumes(mesh.elements, self.geometry.dvol, mesh.n_nodes,
+                                                 self.quadrature))
+        rho = self.material.density
+        set_(self, "body_force", body_force(self.nodal_volume, rho) if rho > 0 else None)
+        set_(self, "diagonal", diagonal_positions(self.pattern.indptr, self.pattern.indices))
         parts = nested_dissection_parts(mesh)
         if parts is None:
             set_(self, "factor_structure", None)
@@ -208,6 +234,27 @@ class Model:
                 self.pattern.indptr, self.pattern.indices, self.free_dofs,
                 [d[interior[d]] for d in dof_parts], self.lower_dofs.ravel(),
             ))
+
+    def released(self) -> "Model":
+        """This model with the upper face free (``hold_upper=False``), built once."""
+        cache = self.__dict__.get("_released")
+        if cache is None:
+            from dataclasses import replace
+            cache = self if not self.hold_upper else replace(self, hold_upper=False)
+            object.__setattr__(self, "_released", cache)
+        return cache
+
+    @property
+    def weight(self) -> float:
+        """Self-weight of the block ``rho g V``, N."""
+        from .loads import GRAVITY
+        return self.material.density * GRAVITY * float(self.nodal_volume.sum())
+
+    @property
+    def shear_stiffness(self) -> float:
+        """In-plane stiffness of the block under a shear of its upper face, ``G A / H``, N/m."""
+        lx, ly, lz = self.mesh.size
+        return self.material.lame_mu * lx * ly / lz
 
     @property
     def n_contacts(self) -> int:
@@ -265,16 +312,31 @@ class Command:
     dtheta : float
         Rotation increment about the vertical axis through the current upper-face
         centre, rad, counter-clockwise seen from +z.
+    open : float
+        Fraction, in [0, 1], of the gripper's load on the upper face released in
+        this step (an open release, :mod:`fe_contact.release`).  A step with
+        ``open > 0``, or any step once the grip is partly released, moves no
+        gripper: its ``dx`` ... ``dtheta`` must be 0.
     """
 
     dx: float = 0.0
     dy: float = 0.0
     dz: float = 0.0
     dtheta: float = 0.0
+    open: float = 0.0
 
     def __post_init__(self):
-        for name in ("dx", "dy", "dz", "dtheta"):
+        for name in ("dx", "dy", "dz", "dtheta", "open"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if not 0.0 <= self.open <= 1.0:
+            raise ValueError(f"open must be in [0, 1], got {self.open}")
+        if self.open > 0 and any((self.dx, self.dy, self.dz, self.dtheta)):
+            raise ValueError("a command that opens the gripper cannot also move it (dx, dy, dz, dtheta must be 0)")
+
+    @property
+    def moves(self) -> bool:
+        """The command moves the gripper."""
+        return any((self.dx, self.dy, self.dz, self.dtheta))
 
 
 class TangentCache:
@@ -320,6 +382,17 @@ class State:
         norms), m.
     step_index : int
         Number of load steps taken.
+    plate : ndarray, shape (3,)
+        Actual in-plane pose ``(x, y, theta)`` of the upper-face plate, m, m,
+        rad: the commanded one for a rigid drive, behind it by the spring
+        deflection for a compliant gripper (default: the commanded pose).
+    grip : float
+        Fraction of the gripper's load still on the upper face: 1 held (the
+        upper face follows the gripper), below 1 an open release under way, 0
+        let go (the upper face is traction-free).
+    upper_load : ndarray, shape (n_upper, 3), or None
+        Nodal forces the gripper applied on the upper face when the open
+        release began, N (None before).
     tangent : TangentCache
         Handle on the factorised tangent and flexibility matrix of an earlier
         configuration, reused by the next step when
@@ -334,13 +407,24 @@ class State:
     slip_path: np.ndarray
     step_index: int = 0
     tangent: TangentCache = field(default_factory=TangentCache, compare=False, repr=False)
+    plate: np.ndarray | None = None
+    grip: float = 1.0
+    upper_load: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.plate is None:
+            object.__setattr__(self, "plate", np.array([*np.asarray(self.upper_translation, float)[:2],
+                                                        self.upper_rotation]))
+        object.__setattr__(self, "grip", _finite("grip", self.grip))
+        if self.upper_load is not None:
+            load = np.array(self.upper_load, dtype=float)
+            load.setflags(write=False)
+            object.__setattr__(self, "upper_load", load)
         if self.tangent is None:
             object.__setattr__(self, "tangent", TangentCache())
         elif not isinstance(self.tangent, TangentCache):
             raise ValueError(f"tangent must be a TangentCache or None, got {type(self.tangent).__name__}")
-        for name in ("displacement", "reaction", "upper_translation", "slip_path"):
+        for name in ("displacement", "reaction", "upper_translation", "slip_path", "plate"):
             a = np.array(getattr(self, name), dtype=float)  # copy: never alias a caller's array
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -357,91 +441,3 @@ def initial_state(model: Model) -> State:
         slip_path=np.zeros(n_lower),
         step_index=0,
     )
-
-
-class Status(enum.Enum):
-    """Outcome of a load step."""
-
-    CONVERGED = "converged"
-    NEWTON_NOT_CONVERGED = "newton_not_converged"
-    CONTACT_NOT_CONVERGED = "contact_not_converged"
-    ELEMENT_INVERTED = "element_inverted"
-    NOT_FINITE = "not_finite"
-    TANGENT_SINGULAR = "tangent_singular"  # K_ff singular or too ill-conditioned for W
-
-
-class NodeStatus(enum.IntEnum):
-    """Contact status of a lower-face node at the end of a step."""
-
-    STICK = 0
-    SLIP = 1
-    SEPARATED = 2
-
-
-@dataclass(frozen=True)
-class IterLog:
-    """One Newton iteration: relative out-of-balance force before the update,
-    local-solver iterations and final local residual."""
-
-    newton_residual: float
-    contact_iterations: int
-    contact_residual: float
-
-
-@dataclass(frozen=True)
-class StepReport:
-    """Everything measured in one load step (SI units; arrays per lower-face node
-    are ordered as ``mesh.lower``).
-
-    When ``status`` is not ``CONVERGED`` the returned state is the input state and
-    the per-node fields describe the last iterate (for diagnosis only).
-    """
-
-    status: Status
-    message: str
-    step_index: int
-    command: Command
-    displacement: np.ndarray  # (n_nodes, 3) m
-    reaction_local: np.ndarray  # (n_lower, 3) N, (n, t_x, t_y)
-    reaction_world: np.ndarray  # (n_lower, 3) N, (x, y, z)
-    pressure: np.ndarray  # (n_lower,) Pa, r_n / tributary area
-    slip_increment: np.ndarray  # (n_lower, 2) m, world x, y
-    slip: np.ndarray  # (n_lower,) m, norm of total tangential displacement (the paper's "slip")
-    slip_path: np.ndarray  # (n_lower,) m, accumulated path length
-    gap: np.ndarray  # (n_lower,) m, normal gap at the end of the step
-    node_status: np.ndarray  # (n_lower,) NodeStatus values
-    upper_centroid: np.ndarray  # (3,) cumulative displacement, m
-    lower_centroid: np.ndarray  # (3,) cumulative displacement, m
-    lower_yaw: float  # rad, best-fit planar rotation of the lower face
-    twist: float  # rad, signed angle from the upper to the lower in-plane centroid displacement
-    lag: np.ndarray  # (2,) m, upper minus lower in-plane centroid displacement
-    normal_force: float  # N, total normal contact force (> 0 in compression)
-    tangential_force: np.ndarray  # (2,) N, world x, y total friction force on the block
-    upper_force: np.ndarray  # (3,) N, total force the upper-face drive applies on the block
-    equilibrium_error: float  # |sum contact + upper forces| / force scale of the step
-    dissipation: float  # J, frictional dissipation of the step (>= 0)
-    newton_iterations: int
-    contact_iterations: int  # total local-solver iterations over the step
-    newton_residual: float
-    contact_residual: float
-    min_det_f: float
-    wall_time: float  # s
-    iterations: tuple[IterLog, ...] = ()
-    tangent_updates: int = 0  # flexibility matrices computed in the step
-    timings: dict = field(default_factory=dict)  # s per phase: assembly, tangent, local, solve
-
-    @property
-    def converged(self) -> bool:
-        return self.status is Status.CONVERGED
-
-    @property
-    def n_stick(self) -> int:
-        return int(np.count_nonzero(self.node_status == NodeStatus.STICK))
-
-    @property
-    def n_slip(self) -> int:
-        return int(np.count_nonzero(self.node_status == NodeStatus.SLIP))
-
-    @property
-    def n_separated(self) -> int:
-        return int(np.count_nonzero(self.node_status == NodeStatus.SEPARATED))

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .elasticity import internal_force, internal_force_and_tangent
+from .elasticity import internal_force
+from .loads import NO_LOADING, Loading
 from .local_solver import solve_local
 from .model import IterLog, Model, State, Status
 from .tangent import Tangent, refresh_due, refreshed_tangent
@@ -74,15 +75,19 @@ def _timed(timings: dict, phase: str):
 
 
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
-                consume: bool = False) -> Equilibrium:
+                consume: bool = False, loading: Loading = NO_LOADING) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
     the upper face at its commanded pose (``U`` is updated in place).
 
-    The tangent cached in ``state`` is reused when ``SolverOptions.reuse_tangent``;
-    with ``consume`` it is released at a refresh (see :func:`fe_contact.step.step`).
-    """
+    The tangent cached in ``state`` (if of the same free dofs) is reused when
+    ``SolverOptions.reuse_tangent``; with ``consume`` it is released at a
+    refresh (see :func:`fe_contact.step.step`).  ``loading``
+    (:class:`~fe_contact.loads.Loading`) makes the out-of-balance force
+    ``f_int + f_spring - f_applied - f_contact``."""
     opts = model.options
     tangent = state.tangent.value if opts.reuse_tangent else None
+    if tangent is not None and tangent.n_free != model.free_dofs.size:
+        tangent = None  # cached before the gripper let go: other free dofs
     workspace = tangent.workspace.copy() if tangent is not None else None
     r = np.array(state.reaction, dtype=float)
     timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
@@ -93,14 +98,14 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     for it in range(opts.newton_max_iter + 1):
         need_tangent = tangent is None or not opts.reuse_tangent
         with _timed(timings, "assembly"):
-            f_int, K, min_det = _forces(model, state, U, need_tangent, it)
+            f_int, K, min_det = _forces(model, state, U, need_tangent, it, loading)
         breakdown = _breakdown(f_int, min_det, it)
         if breakdown is not None:
             status, message = breakdown
             break
         contact_world, f_contact = _contact_forces(model, r)
         if it == 0:
-            scale0 = _command_force_scale(model, state, U, f_contact)
+            scale0 = _command_force_scale(model, state, U, f_contact, loading)
         R, rel_res = _out_of_balance(model, f_int, f_contact, contact_world, scale0)
         if it > 0 and rel_res <= opts.newton_tol:
             status = Status.CONVERGED
@@ -121,11 +126,10 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
                 state.tangent.release()  # the caller gave the state up
             if K is None:
                 with _timed(timings, "assembly"):
-                    _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, U,
-                                                         model.material, model.pattern)
+                    _, K, _ = loading.tangent(model, U)
             handed, K = [K], None
             with _timed(timings, "tangent"):
-                tangent, fallback, failure = refreshed_tangent(model, state, handed, it, timings)
+                tangent, fallback, failure = refreshed_tangent(model, state, handed, it, timings, loading)
             if tangent is None:
                 status, message = Status.TANGENT_SINGULAR, failure
                 break
@@ -148,21 +152,23 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
                        cached, timings)
 
 
-def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: int):
-    """Internal force (n_dofs,) at ``U``, the stiffness if a tangent is to be
-    built (else None), and the smallest ``det F`` at the Gauss points."""
+def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: int, loading: Loading):
+    """Internal minus applied force (n_dofs,) at ``U``, the stiffness if a
+    tangent is to be built (else None), and the smallest ``det F`` at the
+    Gauss points."""
     geometry, elements, material = model.geometry, model.mesh.elements, model.material
+    K = None
     if need_tangent and model.options.reuse_tangent and it == 0:
         # A tangent kept for many iterations is best taken at the converged
         # start of the step, an equilibrium state: a tangent at an iterate
         # can be indefinite (see fe_contact.tangent.refreshed_tangent).
-        _, K, _ = internal_force_and_tangent(geometry, elements, state.displacement, material, model.pattern)
+        _, K, _ = loading.tangent(model, state.displacement)
         f_int, min_det = internal_force(geometry, elements, U, material)
-        return f_int, K, min_det
-    if need_tangent:
-        return internal_force_and_tangent(geometry, elements, U, material, model.pattern)
-    f_int, min_det = internal_force(geometry, elements, U, material)
-    return f_int, None, min_det
+    elif need_tangent:
+        f_int, K, min_det = loading.tangent(model, U)
+    else:
+        f_int, min_det = internal_force(geometry, elements, U, material)
+    return loading.force(f_int, U), K, min_det
 
 
 def _breakdown(f_int: np.ndarray, min_det: float, it: int) -> tuple[Status, str] | None:
@@ -191,7 +197,8 @@ def _out_of_balance(model: Model, f_int, f_contact, contact_world, scale0: float
     return R, rel_res
 
 
-def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: np.ndarray) -> float:
+def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: np.ndarray,
+                         loading: Loading) -> float:
     """Norm of the out-of-balance force of the step's command applied to the
     upper face alone (the rest of the block left at ``state``), with the
     start's contact forces ``f_contact``.
@@ -204,7 +211,8 @@ def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: n
     U_upper_only = np.array(state.displacement, dtype=float)
     U_upper_only[upper] = U[upper]
     f_int, _ = internal_force(model.geometry, model.mesh.elements, U_upper_only, model.material)
-    return float(np.linalg.norm((f_int - f_contact)[model.free_dofs]))
+    f_int = loading.force(f_int, U_upper_only)
+    return max(float(np.linalg.norm((f_int - f_contact)[model.free_dofs])), model.weight)
 
 
 def _contact_correction(model: Model, state: State, tangent: Tangent, workspace, U, R, r, it: int,

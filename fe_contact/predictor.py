@@ -74,7 +74,7 @@ def predictor(model: Model, state: State, command: Command) -> np.ndarray:
     solution is the same.
     """
     x = model.mesh.nodes + state.displacement
-    centre = model.upper_centre[:2] + state.upper_translation[:2]
+    centre = model.upper_centre[:2] + state.plate[:2]  # the plate's pose (the commanded one if rigid)
     cs, sn = math.cos(command.dtheta), math.sin(command.dtheta)
     rel = x[:, :2] - centre
     U = np.array(state.displacement, dtype=float)

@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from .loads import NO_LOADING, Loading
 from .measure import measure
 from .model import Command, Model, State, StepReport, TangentCache
 from .newton import Equilibrium, equilibrium
@@ -69,19 +70,41 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     """
     _check_arguments(model, state, command)
     t0 = time.perf_counter()
+    if state.grip < 1.0 or command.open > 0:
+        from .release import open_step
+        return open_step(model, state, command, t0, local_problem_hook, consume)
+    if not model.gripper.rigid:
+        from .gripper import compliant_step
+        return compliant_step(model, state, command, t0, local_problem_hook, consume)
     translation, rotation = commanded_pose(state, command)
-    U = predictor(model, state, command)
-    U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
-    eq = equilibrium(model, state, U, local_problem_hook, consume)
-    report = measure(model, state, command, eq, t0)
+    eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
     if not report.converged:
         return state, report
     return next_state(state, eq, translation, rotation, report), report
 
 
+def held_step(model: Model, state: State, command: Command, translation: np.ndarray, rotation: float,
+              t0: float, local_problem_hook=None, consume: bool = False,
+              extra: dict | None = None) -> tuple[Equilibrium, StepReport]:
+    """Equilibrium and report of a step with the upper face held by the plate
+    at pose ``(translation, rotation)`` (the rigid drive; the compliant
+    gripper's trial poses)."""
+    U = predictor(model, state, command)
+    U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
+    loading = held_loading(model)
+    eq = equilibrium(model, state, U, local_problem_hook, consume, loading)
+    return eq, measure(model, state, command, eq, t0, loading, extra)
+
+
+def held_loading(model: Model) -> Loading:
+    """The applied loads of a held step: the self-weight, if any."""
+    return NO_LOADING if model.body_force is None else Loading(external=model.body_force)
+
+
 def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation: float,
-               report: StepReport) -> State:
-    """The state a converged step ends in, with its own cache of ``eq``'s tangent."""
+               report: StepReport, **changes) -> State:
+    """The state a converged step ends in, with its own cache of ``eq``'s
+    tangent; ``changes`` sets ``plate``, ``grip``, ``upper_load``."""
     return State(
         displacement=eq.displacement,
         reaction=eq.reaction,
@@ -90,6 +113,7 @@ def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation:
         slip_path=report.slip_path,
         step_index=state.step_index + 1,
         tangent=TangentCache(eq.tangent),
+        **changes,
     )
 
 

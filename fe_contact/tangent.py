@@ -253,7 +253,7 @@ def refresh_due(tangent: Tangent, at_start: bool, it: int, rel_res: float, prev_
             and refresh_pays(tangent, rel_res / prev_res, rel_res, opts, it))
 
 
-def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timings: dict):
+def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timings: dict, loading=None):
     """A new tangent from the stiffness ``K`` (n_dofs, n_dofs) in ``handed_K``.
 
     ``K`` is at the current iterate, or at the step's start at iteration 0 of a
@@ -263,6 +263,8 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
     the converged start of the step is taken instead, as a step without a
     cached tangent does.  ``handed_K`` is a one-element list the caller gives
     up, so that ``K`` goes before the start-state one is assembled.
+    ``loading`` (:class:`~fe_contact.loads.Loading`) adds its springs to the
+    start-state stiffness.
 
     Returns
     -------
@@ -282,8 +284,11 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
         at_start = tangent is None
         if at_start:
             t0 = time.perf_counter()
-            _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
-                                                 model.material, model.pattern)
+            if loading is None:
+                _, K, _ = internal_force_and_tangent(model.geometry, model.mesh.elements, state.displacement,
+                                                     model.material, model.pattern)
+            else:
+                _, K, _ = loading.tangent(model, state.displacement)
             dt = time.perf_counter() - t0
             timings["assembly"] += dt
             timings["tangent"] -= dt  # (the caller times this call as tangent time)

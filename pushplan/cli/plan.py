@@ -90,8 +90,15 @@ def cmd_plan(args) -> int:
         write_recording(result, out / "recording.rrd", scenario.model())
         wrote.append(out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")
-    print(f"  planned final error (FE, verification mesh): {_describe(doc['final_error'])}")
-    print(f"  naive final error   (FE, verification mesh): {_describe(doc['naive']['final_error'])}")
+    state = spec.target_state
+    print(f"  target: the lower-face pose {'at rest after the release' if state == 'rest' else 'under load'}")
+    for name in ("loaded", "rest"):
+        plan_pose, naive_pose = doc["final_poses"][name], doc["naive"]["final_poses"][name]
+        if plan_pose is None:
+            continue
+        mark = " (the target's)" if name == state else ""
+        print(f"  planned error {name:>6}{mark} (FE, verification mesh): {_describe(plan_pose['error'])}")
+        print(f"  naive error   {name:>6}{mark} (FE, verification mesh): {_describe(naive_pose['error'])}")
     if spec.world_origin is not None:
         x, y, yaw = doc["world"]["verified_final"]
         print(f"  verified final pose (world frame): x {x * 1e3:.5f} mm, y {y * 1e3:.5f} mm, yaw {yaw:.4f} deg")

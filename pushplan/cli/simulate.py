@@ -21,6 +21,17 @@ def print_steps(steps) -> None:
               f"{s.max_slip*1e3:>7.4f}mm {s.newton_iterations:>6} {s.contact_iterations:>7}")
 
 
+def print_rest(summary) -> None:
+    """Which pose is which: the last load step's (loaded, gripper holding) and the rest pose."""
+    rest = summary.rest
+    if rest is None:
+        return
+    lo = rest.lower_centroid
+    print(f"at rest after the {rest.mode} release: lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
+          f"yaw {rest.lower_yaw_deg:.4f}°, normal force {rest.normal_force:.4g} N, "
+          f"strain energy {rest.strain_energy:.3g} J (the steps before the release are the loaded poses)")
+
+
 def exit_status(run) -> int:
     """0 for a completed run; otherwise the failure on stderr and :data:`EXIT_SOLVER_FAILURE`."""
     if not run.completed:
@@ -45,6 +56,7 @@ def cmd_simulate(args) -> int:
                    recording=not args.no_recording, export_fclib=fclib_dir)
     if not args.quiet:
         print_steps(run.summary.steps)
+        print_rest(run.summary)
         print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 

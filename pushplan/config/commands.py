@@ -1,5 +1,6 @@
 """The one codec of upper-face commands between ``fe_contact.Command`` (m, rad) and
-files (``{"dx": m, "dy": m, "dz": m, "dtheta_deg": deg}``), used by scenarios,
+files (``{"dx": m, "dy": m, "dz": m, "dtheta_deg": deg}``, plus ``"open"``, the
+fraction of the grip released, in a step of an open release), used by scenarios,
 ``plan.json``, summaries, recordings and the MuJoCo bridge.
 
 A command file is any JSON object with a ``commands`` list (a ``plan.json``),
@@ -20,6 +21,7 @@ from .files import read_json
 from .validate import Table
 
 COMMAND_KEYS = ("dx", "dy", "dz", "dtheta_deg")
+RELEASE_KEYS = ("open",)
 
 
 def degrees_exact(angle: float) -> float:
@@ -36,14 +38,20 @@ def degrees_exact(angle: float) -> float:
 
 
 def command_to_dict(c: Command) -> dict:
-    return {"dx": c.dx, "dy": c.dy, "dz": c.dz, "dtheta_deg": degrees_exact(c.dtheta)}
+    d = {"dx": c.dx, "dy": c.dy, "dz": c.dz, "dtheta_deg": degrees_exact(c.dtheta)}
+    return {**d, "open": c.open} if c.open else d
 
 
 def command_from_dict(item, key: str) -> Command:
     """A command from its dict; missing components are 0; ``key`` names it in messages."""
-    t = Table(item, key, COMMAND_KEYS)
+    t = Table(item, key, COMMAND_KEYS + RELEASE_KEYS)
     dx, dy, dz, dtheta_deg = (t.number(k, 0.0) for k in COMMAND_KEYS)
-    return Command(dx, dy, dz, math.radians(dtheta_deg))
+    opened = t.number("open", 0.0, nonneg=True)
+    if opened > 1.0:
+        raise InputError(f"{t.key('open')} must be <= 1, got {opened!r}")
+    if opened and any((dx, dy, dz, dtheta_deg)):
+        raise InputError(f"{key}: a command that opens the gripper cannot also move it")
+    return Command(dx, dy, dz, math.radians(dtheta_deg), opened)
 
 
 def commands_to_list(commands) -> list[dict]:

@@ -17,6 +17,9 @@ applied before the planned commands; the ``[plan]`` table reads (SI units)::
     planning_quadrature = 2
     max_rollouts = 6           # FE rollouts per mesh in the correction loop
     frame = "block"            # "world": x, y, yaw_deg are the MuJoCo world pose (below)
+    target_state = "rest"      # "loaded": the lower face while the gripper still holds it after the
+                               # last command; "rest": where it comes to rest after the scenario's
+                               # [release] (default when there is one; needs one)
 
 With ``frame = "world"`` (a scenario with a ``[mujoco]`` table) ``x``, ``y`` are the
 world position (m) of the lower-face centre and ``yaw_deg`` the block's world yaw;
@@ -43,9 +46,10 @@ from .validate import Table, count
 
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
-    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame",
+    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame", "target_state",
 })
 FRAMES = ("block", "world")
+TARGET_STATES = ("loaded", "rest")
 REQUIRED_KEYS = frozenset({"x", "y", "steps", "max_step"})
 DEFAULT_TOLERANCE_REL = 0.0025
 """Default position tolerance as a fraction of the travel distance."""
@@ -75,6 +79,7 @@ class PlanSpec:
     planning_elements: tuple[int, int, int]
     planning_quadrature: int
     max_rollouts: int
+    target_state: str = "loaded"
     world_target: tuple[float, float, float] | None = None
     """With ``frame = "world"``: the table's world ``(x, y, yaw)`` (m, rad)."""
     world_origin: tuple[float, float, float] | None = None
@@ -103,7 +108,7 @@ class PlanSpec:
             "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
             "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
             "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-            "travel": self.travel, "frame": "block" if self.world_origin is None else "world",
+            "travel": self.travel, "target_state": self.target_state, "frame": "block" if self.world_origin is None else "world",
             **({} if self.world_origin is None else {"world": {
                 "x": self.world_target[0], "y": self.world_target[1],
                 "yaw_deg": math.degrees(self.world_target[2]) if self.yaw_targeted else None,
@@ -116,7 +121,8 @@ class PlanSpec:
         table = {"x": self.target[0], "y": self.target[1], "steps": self.steps, "max_step": self.max_step,
                  "tolerance": self.tolerance, "yaw_tolerance_deg": degrees_exact(self.yaw_tolerance),
                  "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
-                 "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts}
+                 "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
+                 "target_state": self.target_state}
         if self.yaw_targeted:
             table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
         if self.world_target is not None:
@@ -228,6 +234,9 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         tolerance = DEFAULT_TOLERANCE_REL * travel
     else:
         raise InputError("plan.tolerance is required when the target position is the start (x = y = 0)")
+    target_state = t.choice("target_state", TARGET_STATES, "rest" if scenario.release else "loaded")
+    if target_state == "rest" and scenario.release is None:
+        raise InputError('plan.target_state = "rest" needs a [release] table (how the gripper lets go)')
     return PlanSpec(
         target=(x, y, yaw), yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
         tolerance=tolerance,
@@ -236,5 +245,5 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         planning_elements=t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS)),
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=1, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1),
-        world_target=world_target, world_origin=world_origin,
+        world_target=world_target, world_origin=world_origin, target_state=target_state,
     )

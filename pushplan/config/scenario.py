@@ -11,6 +11,7 @@ A scenario reads::
     [material]
     young = 210e9                             # Pa
     poisson = 0.3
+    density = 0.0                             # optional, kg/m^3: self-weight (gravity 9.81 m/s^2 along -z)
     [friction]
     mu_x = 0.3
     mu_y = 0.05
@@ -24,6 +25,13 @@ A scenario reads::
     repeat = 4                                # optional, applies the entry 4 times
     [solver]                                  # optional, fe_contact.SolverOptions fields
     local_method = "uzawa"
+    [gripper]                                 # optional: a compliant gripper (omitted: rigid drive)
+    stiffness_xy = 4e4                        # N/m, > 0 (inf: rigid)
+    stiffness_yaw = 5.0                       # N m/rad, > 0 (inf: rigid)
+    [release]                                 # optional: let go after the last load step
+    mode = "open"                             # "lift" (rise until the plate carries no load) or
+                                              # "open" (every upper-face traction to zero; needs density > 0)
+    steps = 16                                # increments (>= 1; default 16)
 
 Unknown keys and invalid values raise :class:`~pushplan.errors.InputError` naming the
 key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other commands
@@ -38,7 +46,7 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh
+from fe_contact import Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
 from fe_contact.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
@@ -54,7 +62,12 @@ MAX_ELEMENTS = 1_000_000
 PLAUSIBLE = {"material.young": (1e4, 1e12, "Pa"), "block.size": (1e-4, 10.0, "m")}
 """Ranges outside which a value is valid but probably in the wrong unit: moduli from soft
 foams (~10 kPa) to diamond (~1 TPa); blocks from 0.1 mm to 10 m."""
-TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "solver", *EXTRA_TABLES}
+TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "solver", "gripper", "release",
+            *EXTRA_TABLES}
+RELEASE_MODES = ("lift", "open")
+DEFAULT_RELEASE_STEPS = 16
+"""Release increments when ``[release]`` omits ``steps``: an open release's rest pose
+moves by about 4 % of the lag from 16 to 32 steps on the tests' rubber block."""
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
 
@@ -78,6 +91,9 @@ class Scenario:
     solver: SolverOptions = field(default_factory=SolverOptions)
     description: str = ""
     extra: dict = field(default_factory=dict)
+    density: float = 0.0
+    gripper: Gripper | None = None
+    release: Release | None = None
 
     def model(self, elements=None, quadrature=None) -> Model:
         """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh.
@@ -90,10 +106,11 @@ class Scenario:
         try:
             return Model(
                 mesh=block_mesh(self.size, elements or self.elements),
-                material=Material(self.young, self.poisson),
+                material=Material(self.young, self.poisson, self.density),
                 friction=Friction(self.mu_x, self.mu_y, math.radians(self.angle_deg)),
                 quadrature=quadrature or self.quadrature,
                 options=self.solver,
+                gripper=self.gripper or Gripper(),
             )
         except ValueError as exc:  # fe_contact's own checks at its public boundary
             raise InputError(f"scenario {self.name}: {exc}") from None
@@ -102,14 +119,24 @@ class Scenario:
         """The scenario as TOML-/JSON-ready tables (SI units): what
         :func:`parse_scenario` reads back into an equal scenario."""
         solver = {k: v for k, v in asdict(self.solver).items() if v is not None}
+        material = {"young": self.young, "poisson": self.poisson}
+        optional = {}  # tables and keys written only when set, so older files read the same
+        if self.density:
+            material["density"] = self.density
+        if self.gripper is not None:
+            optional["gripper"] = {"stiffness_xy": self.gripper.stiffness_xy,
+                                   "stiffness_yaw": self.gripper.stiffness_yaw}
+        if self.release is not None:
+            optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
         return {
             "name": self.name,
             "description": self.description,
             "block": {"size": list(self.size), "elements": list(self.elements), "quadrature": self.quadrature},
-            "material": {"young": self.young, "poisson": self.poisson},
+            "material": material,
             "friction": {"mu_x": self.mu_x, "mu_y": self.mu_y, "angle_deg": self.angle_deg},
             "load": commands_to_list(self.commands),
             "solver": solver,
+            **optional,
             **{k: v for k, v in self.extra.items()},
         }
 
@@ -152,6 +179,34 @@ def _solver(table) -> SolverOptions:
         raise InputError(f"solver.{exc}") from None
 
 
+def _stiffness(t: Table, k: str) -> float:
+    value = t.data[k]
+    if isinstance(value, float) and value == math.inf:
+        return value  # a rigid drive, written as inf
+    return t.number(k, positive=True)
+
+
+def _gripper(top: Table) -> Gripper | None:
+    if "gripper" not in top:
+        return None
+    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw"}, required={"stiffness_xy", "stiffness_yaw"})
+    xy, yaw = _stiffness(t, "stiffness_xy"), _stiffness(t, "stiffness_yaw")
+    if math.isinf(xy) != math.isinf(yaw):
+        raise InputError("gripper.stiffness_yaw must be inf with gripper.stiffness_xy = inf, and finite with it "
+                         f"finite (a gripper is rigid or compliant), got {xy} and {yaw}")
+    return Gripper(xy, yaw)
+
+
+def _release(top: Table, density: float) -> Release | None:
+    if "release" not in top:
+        return None
+    t = top.table("release", {"mode", "steps"}, required={"mode"})
+    mode = t.choice("mode", RELEASE_MODES)
+    if mode == "open" and density <= 0:
+        raise InputError('release.mode = "open" needs a block with weight: set material.density > 0')
+    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS))
+
+
 def _commands(loads) -> tuple[Command, ...]:
     if not isinstance(loads, list):
         raise InputError(f"load must be an array of tables ([[load]]), got {loads!r}")
@@ -186,7 +241,8 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     quadrature = block.integer("quadrature", 3, minimum=1)
     if quadrature not in (2, 3):
         raise InputError(f"block.quadrature must be 2 or 3 (1 leaves hourglass modes), got {quadrature}")
-    material = top.table("material", {"young", "poisson"}, required={"young", "poisson"})
+    material = top.table("material", {"young", "poisson", "density"}, required={"young", "poisson"})
+    density = material.number("density", 0.0, nonneg=True)
     friction = top.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
     scenario = Scenario(
         name=top.string("name", name),
@@ -202,6 +258,9 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         commands=_commands(data.get("load", [])),
         solver=_solver(data.get("solver", {})),
         extra={k: data[k] for k in EXTRA_TABLES if k in data},
+        density=density,
+        gripper=_gripper(top),
+        release=_release(top, density),
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)

@@ -46,7 +46,7 @@ def plan_document(result: PlanResult) -> dict:
     after planned command k (simulate step ``press_steps + k``).  ``solver.fe_rollouts``
     counts every rollout per mesh: calibration, correction and the naive baseline.
     """
-    spec, sol = result.spec, result.solution
+    spec, sol, state = result.spec, result.solution, result.spec.target_state
     return {
         "scenario": result.scenario.to_dict(),
         "plan": spec.to_dict(),
@@ -64,13 +64,15 @@ def plan_document(result: PlanResult) -> dict:
         },
         "modifier": {"x": float(result.modifier[0]), "y": float(result.modifier[1]),
                      "yaw_deg": math.degrees(float(result.modifier[2]))},
-        "final_error": _error_json(result.verified.lower[-1], spec),
+        "final_error": _error_json(result.verified.final(state), spec),
+        "final_poses": _final_poses_json(result.verified, spec),
         "naive": {
             "commands": _commands_json(result.naive.commands),
             "verified_poses": _poses_json(result.naive.lower),
-            "final_error": _error_json(result.naive.lower[-1], spec),
+            "final_error": _error_json(result.naive.final(state), spec),
+            "final_poses": _final_poses_json(result.naive, spec),
         },
-        "reduced_model": result.params.to_dict(),
+        "reduced_model": {**result.params.to_dict(), "springback": result.springback.to_dict()},
         "meshes": {
             "planning": {"elements": list(spec.planning_elements), "quadrature": spec.planning_quadrature},
             "verification": {"elements": list(result.scenario.elements), "quadrature": result.scenario.quadrature},
@@ -84,8 +86,27 @@ def plan_document(result: PlanResult) -> dict:
             "wall_time_s": result.timings,
             "iterations": [it.to_dict() for it in result.iterations],
         },
-        "release": "not modelled: poses are under load, upper face held after the last command",
+        "release": _release_json(result),
     }
+
+
+def _final_poses_json(rollout, spec: PlanSpec) -> dict:
+    """The rollout's final lower-face pose loaded and at rest (None without a
+    release), each ``[x, y, yaw_deg]`` with its error against the target."""
+    poses = {"loaded": rollout.lower[-1], "rest": rollout.rest}
+    return {name: None if pose is None else {"pose": _poses_json([pose])[0], "error": _error_json(pose, spec)}
+            for name, pose in poses.items()}
+
+
+def _release_json(result: PlanResult) -> dict:
+    """How the gripper lets go and which pose the target is for."""
+    release = result.scenario.release
+    return {"mode": None if release is None else release.mode,
+            "steps": None if release is None else release.steps,
+            "target_state": result.spec.target_state,
+            "meaning": ("the target is the lower-face pose at rest after the release" if result.spec.target_state
+                        == "rest" else "the target is the lower-face pose under load, the gripper still holding "
+                                       "the upper face after the last command")}
 
 
 def write_recording(result: PlanResult, path, verification_model: Model) -> None:

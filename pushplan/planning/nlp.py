@@ -18,6 +18,7 @@ import numpy as np
 
 from ..config.plan import PlanSpec
 from .reduced_model import PushParameters, simulate_reduced
+from .springback import Springback
 from .target import naive_commands
 
 COMPLEMENTARITY_EPS = 1e-8
@@ -55,12 +56,14 @@ class ReducedPlanner:
     surface normal, the upper face leads it by the elastic lag.
     """
 
-    def __init__(self, params: PushParameters, spec: PlanSpec):
+    def __init__(self, params: PushParameters, spec: PlanSpec, springback: Springback | None = None):
         import casadi as ca
 
         if spec.yaw_targeted and not params.rotation:
             raise ValueError("a yaw target needs a reduced model with torsional parameters")
         self.params, self.spec = params, spec
+        # the pose the target is for: loaded, or at rest after the release (spring-back of the lag)
+        self.springback = springback if spec.target_state == "rest" else None
         K, d = spec.steps, (3 if spec.yaw_targeted else 2)
         opti = ca.Opti()
         A = opti.variable(d, K)
@@ -99,6 +102,8 @@ class ReducedPlanner:
         opti.subject_to(sigma >= 0)
         opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
         final = lower[-1] + modifier
+        if self.springback is not None:
+            final = final + ca.DM(self.springback.fractions) * (upper[-1] - lower[-1])
         miss = final[:2] - target[:2]
         objective = ca.sumsqr(miss) / spec.tolerance**2 + spec.effort_weight * effort / K
         if spec.yaw_targeted:
@@ -116,6 +121,12 @@ class ReducedPlanner:
         self._lower, self._upper = ca.horzcat(*lower), ca.horzcat(*upper)
         self._cmds = ca.horzcat(*cmds)
         self._objective = objective
+
+    def predicted_final(self, solution: NlpSolution) -> np.ndarray:
+        """The reduced model's final pose (3,) in the target's state (without the modifier)."""
+        if self.springback is None:
+            return solution.lower[-1]
+        return self.springback.rest(solution.lower[-1], solution.upper[-1])
 
     def initial_guess(self) -> dict:
         """The variables of the naive commands (clipped to the step bounds), from the

@@ -15,8 +15,11 @@ Strategy (the README explains why):
    reported result.
 
 The scenario's ``[[load]]`` entries are the press; the ``[plan]`` table is read by
-:mod:`pushplan.config.plan`.  The poses are those under load (upper face still held
-after the last command); release is not modelled.
+:mod:`pushplan.config.plan`.  ``target_state`` says which pose the target is for:
+``"loaded"`` (upper face still held after the last command) or ``"rest"`` (after
+the scenario's ``[release]``).  For a rest target every rollout runs the release,
+and the reduced model predicts the rest pose with the spring-back of the lag
+(:mod:`.springback`) calibrated on the naive rollout.
 
 ``parse_plan``, ``plan_commands_json`` and ``plan_document`` are re-exported here for
 callers of the earlier flat module.
@@ -37,6 +40,7 @@ from .nlp import NlpSolution, ReducedPlanner, model_consistency
 from .reduced_model import PushParameters, calibrate
 from .result import Iteration, PlanResult
 from .rollouts import FeRollouts, Rollout
+from .springback import Springback, calibrate_springback
 from .target import naive_commands, pose_error, reach_message, within_tolerance
 
 __all__ = ["NO_PROGRESS", "plan", "parse_plan", "plan_commands_json", "plan_document"]
@@ -81,7 +85,7 @@ class _Correction:
         previous_error = math.inf
         for j in range(self.spec.max_rollouts):
             roll, pos_err = self._iterate(phase, fe, j)
-            if within_tolerance(roll.lower[-1], self.spec):
+            if within_tolerance(roll.final(self.spec.target_state), self.spec):
                 break
             if not self.spec.reachable and abs(previous_error - pos_err) < NO_PROGRESS * self.spec.tolerance:
                 break
@@ -98,8 +102,9 @@ class _Correction:
         roll = fe.rollout(solution.commands)
         self.timings[f"{phase}_rollouts"] += roll.wall_time
         used_modifier = self.modifier
-        self.modifier = roll.lower[-1] - solution.lower[-1]
-        pos_err, yaw_err = pose_error(roll.lower[-1], spec)
+        final = roll.final(spec.target_state)
+        self.modifier = final - self.planner.predicted_final(solution)
+        pos_err, yaw_err = pose_error(final, spec)
         it = Iteration(
             phase=phase, rollout=j + 1, resolved=resolve, nlp_iterations=solution.iterations,
             nlp_success=solution.success, nlp_status=solution.return_status, objective=solution.objective,
@@ -125,26 +130,31 @@ def _iteration_line(it: Iteration, spec: PlanSpec) -> str:
             + f", ipopt {it.nlp_iterations} it {'ok' if it.nlp_success else it.nlp_status}")
 
 
-def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> PushParameters:
+def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tuple[PushParameters, Springback]:
     """The reduced model fitted to the naive push (and for a yaw target a pure rotation)
-    on the planning mesh."""
-    calib = coarse.rollout(naive)
+    on the planning mesh, and the spring-back of its release."""
+    calib = coarse.rollout(naive, release=spec.target_state == "rest")
+    springback = Springback(0.0, 0.0)
+    if calib.rest is not None:
+        springback = calibrate_springback(calib.lower[-1], calib.upper[-1], calib.rest)
+        _log_line(log, f"release spring-back: {springback.position:.4g} of the lag in position, "
+                       f"{springback.yaw:.4g} in yaw")
     twist = None
     if spec.yaw_targeted:
-        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)))
+        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False)
     params = calibrate(coarse.model, calib.reports, twist.reports if twist else None)
     _log_line(log, f"calibrated on {coarse.label} mesh {spec.planning_elements}: compliance "
                    f"{params.compliance:.4g} m/N, normal force {params.normal_force:.5g} N"
               + (f", torsion compliance {params.torsion_compliance:.4g} rad/(N m), max torque "
                  f"{params.max_torque:.4g} N m" if params.rotation else ""))
-    return params
+    return params, springback
 
 
 def _status(spec: PlanSpec, verified: Rollout, reach: str) -> tuple[str, str]:
     """The plan's status and message (``reach``: :func:`~.target.reach_message`)."""
     if not spec.reachable:
         return "infeasible", reach
-    if within_tolerance(verified.lower[-1], spec):
+    if within_tolerance(verified.final(spec.target_state), spec):
         return "converged", "FE-verified final pose within tolerance"
     return "not_converged", (f"FE-verified final pose not within tolerance after {spec.max_rollouts} rollouts "
                              "per mesh; the best verified plan is reported")
@@ -176,15 +186,16 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None) -> PlanResu
     reach = reach_message(spec)
     if reach:
         _log_line(log, "warning: " + reach)
+    release = scenario.release  # the rollouts show the rest pose whenever the scenario lets go
     coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature),
-                        press, "planning")
-    fine = FeRollouts(scenario.model(), press, "verification")
+                        press, "planning", release)
+    fine = FeRollouts(scenario.model(), press, "verification", release)
     naive = naive_commands(spec)
     t0 = time.perf_counter()
-    params = _calibrate(coarse, spec, naive, log)
+    params, springback = _calibrate(coarse, spec, naive, log)
     timings["calibration"] = time.perf_counter() - t0
 
-    loop = _Correction(ReducedPlanner(params, spec), timings, log)
+    loop = _Correction(ReducedPlanner(params, spec, springback), timings, log)
     loop.run("planning", coarse)
     loop.run("verification", fine)
 
@@ -197,7 +208,8 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None) -> PlanResu
     status, message = _status(spec, best.rollout, reach)
     pressed = fine.pressed()
     return PlanResult(
-        scenario=scenario, spec=spec, status=status, message=message, params=params, solution=best.solution,
+        scenario=scenario, spec=spec, status=status, message=message, params=params, springback=springback,
+        solution=best.solution,
         planning=loop.planning, verified=best.rollout, naive=naive_roll, modifier=best.modifier,
         iterations=tuple(loop.iterations), rollouts={"planning": coarse.count, "verification": fine.count},
         timings=timings, press_reports=pressed.reports, press_steps=pressed.steps,

@@ -15,6 +15,7 @@ from ..run import StepSummary
 from .nlp import NlpSolution
 from .reduced_model import PushParameters
 from .rollouts import Rollout
+from .springback import Springback
 
 STATUSES = ("converged", "infeasible", "not_converged")
 
@@ -74,6 +75,7 @@ class PlanResult:
     status: str
     message: str
     params: PushParameters
+    springback: Springback
     solution: NlpSolution
     planning: Rollout | None
     verified: Rollout

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact import Command, Model, State, StepReport
+from fe_contact import Command, Model, Release, State, StepReport
 
 from ..config.commands import planar_commands
 from ..errors import SolverFailure
@@ -42,6 +42,10 @@ class Rollout:
         The step reports and their summaries.
     wall_time : float
         s.
+    rest : ndarray, shape (3,), or None
+        Lower-face pose ``(x, y, yaw)`` at rest after the release (None without one).
+    release_reports : tuple
+        The release steps' reports.
     """
 
     commands: np.ndarray
@@ -50,22 +54,34 @@ class Rollout:
     reports: tuple[StepReport, ...]
     steps: tuple[StepSummary, ...]
     wall_time: float
+    rest: np.ndarray | None = None
+    release_reports: tuple[StepReport, ...] = ()
+
+    def final(self, target_state: str = "loaded") -> np.ndarray:
+        """The final lower-face pose (3,) loaded (after the last command) or at rest."""
+        if target_state == "rest":
+            if self.rest is None:
+                raise ValueError("this rollout has no release: no rest pose")
+            return self.rest
+        return self.lower[-1]
 
 
 class FeRollouts:
     """The FE model on one mesh, pressed once; every rollout branches from the pressed
     state (``drive`` never mutates its start state).  Counts rollouts; times the press."""
 
-    def __init__(self, model: Model, press: tuple[Command, ...], label: str):
+    def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None):
         self.model = model
         self.press = press
         self.label = label
+        self.release = release
         self.count = 0
         self.press_time = 0.0
         self._pressed: Pressed | None = None
 
-    def _drive(self, commands, state: State | None = None, keep_states: bool = False) -> Run:
-        run = drive(self.model, commands, state, keep_states=keep_states)
+    def _drive(self, commands, state: State | None = None, keep_states: bool = False,
+               release: Release | None = None) -> Run:
+        run = drive(self.model, commands, state, keep_states=keep_states, release=release)
         if not run.completed:
             f = run.summary.failure
             raise PlanningError(f"FE step {f.step} on the {self.label} mesh failed ({f.status}): {f.message}")
@@ -86,8 +102,9 @@ class FeRollouts:
             self.press_time = time.perf_counter() - t0
         return self._pressed
 
-    def rollout(self, commands: np.ndarray) -> Rollout:
-        """Apply (K, 3) commands ``(dx, dy, dtheta)`` after the press.
+    def rollout(self, commands: np.ndarray, release: bool = True) -> Rollout:
+        """Apply (K, 3) commands ``(dx, dy, dtheta)`` after the press, then the
+        release if there is one and ``release``.
 
         Raises
         ------
@@ -96,9 +113,15 @@ class FeRollouts:
         """
         pressed = self.pressed()
         t0 = time.perf_counter()
-        run = self._drive(planar_commands(commands), pressed.state, keep_states=True)
-        lower = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in (pressed.reports[-1], *run.reports)])
-        upper = np.array([[*s.upper_translation[:2], s.upper_rotation] for s in run.states])
+        run = self._drive(planar_commands(commands), pressed.state, keep_states=True,
+                          release=self.release if release else None)
+        K = len(commands)
+        loaded = run.reports[:K]
+        lower = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in (pressed.reports[-1], *loaded)])
+        upper = np.array([[*s.upper_translation[:2], s.upper_rotation] for s in run.states[:K + 1]])
+        rest = run.summary.rest
+        rest = None if rest is None else np.array([*rest.lower_centroid[:2], rest.lower_yaw])
         wall = time.perf_counter() - t0
         self.count += 1
-        return Rollout(np.array(commands, float), lower, upper, tuple(run.reports), tuple(run.summary.steps), wall)
+        return Rollout(np.array(commands, float), lower, upper, tuple(loaded), tuple(run.summary.steps[:K]), wall,
+                       rest, tuple(run.reports[K:]))

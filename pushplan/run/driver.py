@@ -9,7 +9,10 @@ runs its steps through :func:`drive`; what it does with each step is an *observe
         def finish(self, run: Run) -> None: ...                        # optional: after the last step
         def close(self, run: Run) -> None: ...                         # optional: always, last
 
-``run.summary`` is up to date when an observer sees a step.  A step that does not
+``run.summary`` is up to date when an observer sees a step.  With a ``release``
+(:class:`fe_contact.Release`), its steps follow the commands, each chosen after the
+last report (:class:`fe_contact.ReleaseSchedule`); they are steps like any other,
+and ``run.summary.rest`` describes where the block came to rest.  A step that does not
 converge ends the run with a :class:`Failure` (its state is not kept); ``drive`` never
 turns an exception into a status: ``fe_contact.step`` reports numerical breakdowns as
 statuses itself, so anything raised here is a bug and propagates.
@@ -20,10 +23,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from fe_contact import Command, Model, State, StepReport, initial_state, step
+from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, step
 
 from ..errors import InputError
-from .summary import Failure, RunStatus, RunSummary, StepSummary
+from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
 
 
 @dataclass
@@ -76,7 +79,7 @@ def _call(observers, name: str, run: Run) -> None:
 
 
 def drive(model: Model, commands, state: State | None = None, *, scenario: dict | None = None,
-          observers=(), keep_states: bool = False) -> Run:
+          observers=(), keep_states: bool = False, release: Release | None = None) -> Run:
     """Apply ``commands`` in order from ``state`` (default: the undeformed block).
 
     Parameters
@@ -91,6 +94,8 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
         See the module docstring.
     keep_states : bool
         Keep every state in ``run.states``.
+    release : fe_contact.Release, optional
+        Let go of the block after the commands (see the module docstring).
 
     Raises
     ------
@@ -108,7 +113,7 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
     hook = _hook(observers)
     t0 = time.perf_counter()
     try:
-        for i, command in enumerate(commands):
+        for i, command in enumerate(_commands(model, commands, release, run)):
             new_state, report = step(model, run.state, command, local_problem_hook=hook,
                                      consume=owns_start or i > 0)
             run.reports.append(report)
@@ -120,11 +125,23 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
                 break
         else:
             run.summary.status = RunStatus.COMPLETED
+            if release is not None:
+                run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode)
         run.summary.elapsed_s = time.perf_counter() - t0
         _call(observers, "finish", run)
     finally:
         _call(observers, "close", run)
     return run
+
+
+def _commands(model: Model, commands: tuple, release: Release | None, run: Run):
+    """The commands, then the release's, each chosen after the last step."""
+    yield from commands
+    if release is None:
+        return
+    schedule = ReleaseSchedule(model, release, run.state, run.reports[-1] if run.reports else None)
+    while (command := schedule.next_command(run.state, run.reports[-1] if run.reports else None)) is not None:
+        yield command
 
 
 def _record(run: Run, new_state: State, report: StepReport, keep_states: bool) -> None:

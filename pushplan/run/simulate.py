@@ -1,4 +1,5 @@
-"""``simulate``: a scenario's load steps through the driver, with the run's files.
+"""``simulate``: a scenario's load steps (then its ``[release]``, if any) through the
+driver, with the run's files.
 
 Outputs in ``out_dir``: ``summary.json`` (:class:`~pushplan.run.summary.RunSummary`,
 rewritten after every step so a failing run keeps its finished steps),
@@ -77,4 +78,4 @@ def simulate(
 
         path = out / RECORDING_FILE if recording is True else Path(recording)
         watchers.append(RecordingFile(Recorder(path, scenario.name, model.mesh, scenario=resolved)))
-    return drive(model, commands, state, scenario=resolved, observers=watchers)
+    return drive(model, commands, state, scenario=resolved, observers=watchers, release=scenario.release)

@@ -5,7 +5,9 @@ into dicts only at the file boundary (``summary.json``).
                  the file, radians here).
 ``Failure``      the step that failed, its status and message.
 ``RunStatus``    ``running`` / ``completed`` / ``failed``.
-``RunSummary``   the scenario as run, the step summaries, status, failure, elapsed time.
+``RestSummary``  where the block came to rest after a release.
+``RunSummary``   the scenario as run, the step summaries, status, failure, elapsed time,
+                 and the rest pose after a release.
 """
 
 from __future__ import annotations
@@ -128,6 +130,44 @@ class Failure:
         return {"step": self.step, "status": self.status, "message": self.message}
 
 
+@dataclass(frozen=True)
+class RestSummary:
+    """The block at rest after a release (the last release step; SI units, yaw in rad)."""
+
+    mode: str
+    lower_centroid: tuple[float, float, float]
+    lower_yaw: float
+    upper_centroid: tuple[float, float, float]
+    normal_force: float
+    tangential_force: tuple[float, float]
+    strain_energy: float
+    status: str
+
+    @classmethod
+    def from_report(cls, report: StepReport, mode: str) -> RestSummary:
+        return cls(mode=mode, lower_centroid=_floats(report.lower_centroid), lower_yaw=float(report.lower_yaw),
+                   upper_centroid=_floats(report.upper_centroid), normal_force=float(report.normal_force),
+                   tangential_force=_floats(report.tangential_force), strain_energy=float(report.strain_energy),
+                   status=report.status.value)
+
+    @property
+    def lower_yaw_deg(self) -> float:
+        return math.degrees(self.lower_yaw)
+
+    def to_dict(self) -> dict:
+        return {"mode": self.mode, "lower_centroid": list(self.lower_centroid), "lower_yaw_deg": self.lower_yaw_deg,
+                "upper_centroid": list(self.upper_centroid), "normal_force": self.normal_force,
+                "tangential_force": list(self.tangential_force), "strain_energy": self.strain_energy,
+                "status": self.status}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RestSummary:
+        return cls(mode=d["mode"], lower_centroid=_floats(d["lower_centroid"]),
+                   lower_yaw=math.radians(d["lower_yaw_deg"]), upper_centroid=_floats(d["upper_centroid"]),
+                   normal_force=float(d["normal_force"]), tangential_force=_floats(d["tangential_force"]),
+                   strain_energy=float(d["strain_energy"]), status=d["status"])
+
+
 @dataclass
 class RunSummary:
     """What ``summary.json`` holds, as typed data."""
@@ -137,22 +177,25 @@ class RunSummary:
     status: RunStatus = RunStatus.RUNNING
     failure: Failure | None = None
     elapsed_s: float = 0.0
+    rest: RestSummary | None = None
 
     @property
     def completed(self) -> bool:
         return self.status is RunStatus.COMPLETED
 
     def to_dict(self) -> dict:
-        return {"scenario": self.scenario, "elapsed_s": self.elapsed_s, "status": self.status.value,
-                "failure": None if self.failure is None else self.failure.to_dict(),
-                "steps": [s.to_dict() for s in self.steps]}
+        d = {"scenario": self.scenario, "elapsed_s": self.elapsed_s, "status": self.status.value,
+             "failure": None if self.failure is None else self.failure.to_dict(),
+             "steps": [s.to_dict() for s in self.steps]}
+        return d if self.rest is None else {**d, "rest": self.rest.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> RunSummary:
         failure = d.get("failure")
         return cls(scenario=d["scenario"], steps=[StepSummary.from_dict(s) for s in d["steps"]],
                    status=RunStatus(d["status"]), failure=None if failure is None else Failure(**failure),
-                   elapsed_s=float(d["elapsed_s"]))
+                   elapsed_s=float(d["elapsed_s"]),
+                   rest=RestSummary.from_dict(d["rest"]) if d.get("rest") else None)
 
 
 def _floats(a) -> tuple[float, ...]:

@@ -1,0 +1,231 @@
+"""Release of the block after the last load step: the gripper lifts, or opens.
+
+``lift``: the gripper keeps its in-plane command and rises: ``steps`` increments
+``dz = d / steps`` summing to the press depth ``d = -t_z`` (``t_z`` the
+upper face's cumulative vertical translation), then further increments of
+``d / steps`` while the upper face still pushes on the block
+(``upper_force_z < -LIFT_TOL * loaded normal force``).  These are ordinary
+load steps.
+
+``open``: the upper face becomes free (every dof of the block is free) and the
+gripper's hold on it decays to zero.  The hold at grip level ``g`` (1 loaded,
+0 let go) is, per upper-face node ``i`` (N, m):
+
+    f_i = g (F_i - k_i (u_i - u_i^L)),    k_i in-plane only,
+
+``F_i`` the gripper's nodal forces at the last load step, ``u^L`` the
+displacements there, and ``k_i`` the gripper's in-plane stiffness
+(``Gripper.stiffness_xy``, the block's shear stiffness for a rigid gripper)
+spread over the face by tributary area (:func:`pad_stiffness`).  The preload
+and the stiffness go together: a hold of dead loads alone (``k = 0``) is not a
+well-posed quasi-static problem for a block sliding at the friction limit:
+unloading the press contracts the lower face (Poisson), its nodes slip
+radially, friction no longer balances the dead in-plane load and the block
+slides with nothing to stop it (measured: the rest pose then grows with the
+number of release steps without bound).  With the pad's stiffness the in-plane
+load falls as the block moves, and the rest pose converges as the release is
+refined.  The grip levels are geometric down to ``GRIP_FLOOR`` times
+weight / loaded normal force, then 0 (:func:`open_grips`).
+
+Held by contact and friction alone, the free block's rigid modes make
+``K_ff`` singular wherever its contact nodes slip or separate; regularising
+springs on the contact nodes anchored at the last converged configuration
+(:mod:`fe_contact.loads`) keep the flexibility matrix defined and vanish at
+rest; settle steps (``Command()``) follow the ramp until their force is below
+``settle_tol`` times the weight.  The free block is prestressed, so its
+consistent tangent is indefinite in rigid rotations; open-release steps use the
+tangent with the tensile geometric stiffness only (positive definite with the
+springs; the solution is the same).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .elasticity import internal_force
+from .loads import Loading
+from .measure import measure
+from .model import Command, Model, State, StepReport
+
+MODES = ("lift", "open")
+GRIP_FLOOR = 0.1
+"""Last grip level of an open release before 0, as a fraction of weight / loaded normal force."""
+LIFT_TOL = 1e-9
+"""Upper-face push, relative to the loaded normal force, below which the plate carries no load."""
+
+
+@dataclass(frozen=True)
+class Release:
+    """How the gripper lets go after the last load step.
+
+    Parameters
+    ----------
+    mode : {"lift", "open"}
+    steps : int
+        Increments of the release (>= 1).
+    settle_tol : float
+        ``open``: settle until the regularising spring force (norm over the
+        dofs) is at most this fraction of the weight.
+    max_steps : int
+        Limit on the release's steps in all (ramp, extra lift, settle).
+    """
+
+    mode: str
+    steps: int
+    settle_tol: float = 1e-10
+    max_steps: int = 200
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        for name in ("steps", "max_steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        if not 0 < self.settle_tol < 1:
+            raise ValueError(f"settle_tol must be in (0, 1), got {self.settle_tol}")
+
+
+class ReleaseSchedule:
+    """The commands of a release, each chosen after the previous step's report.
+
+    ``next_command(state, report)`` returns the next :class:`Command`, or None
+    when the block is released (or ``max_steps`` were taken); ``report`` is
+    the last step's (None before the first release step).
+    """
+
+    def __init__(self, model: Model, release: Release, state: State, loaded: StepReport | None = None):
+        if release.mode == "open" and model.material.density <= 0:
+            raise ValueError("an open release needs a block with weight (material density > 0)")
+        self.release = release
+        self.weight = model.weight
+        self.depth = max(0.0, -float(state.upper_translation[2]))
+        self.loaded_normal = abs(loaded.normal_force) if loaded is not None else 0.0
+        if release.mode == "open":
+            self.grips = open_grips(release.steps, self.weight, self.loaded_normal)
+        self.taken = 0
+
+    def next_command(self, state: State, report: StepReport | None) -> Command | None:
+        rel, j = self.release, self.taken
+        if j >= rel.max_steps or (report is not None and not report.converged):
+            return None
+        if rel.mode == "lift":
+            command = self._lift(j, report)
+        elif j < rel.steps:
+            command = Command(open=self.grips[j] - self.grips[j + 1])
+        else:
+            command = None if report.regularisation_force <= rel.settle_tol * self.weight else Command()
+        self.taken += command is not None
+        return command
+
+    def _lift(self, j: int, report: StepReport | None) -> Command | None:
+        dz = self.depth / self.release.steps
+        if j < self.release.steps:
+            return Command(dz=dz) if dz > 0 else None
+        pushing = report is not None and report.upper_force[2] < -LIFT_TOL * self.loaded_normal
+        return Command(dz=dz) if pushing and dz > 0 else None
+
+
+def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
+    """Grip levels ``g_0 = 1 > g_1 > ... > g_steps = 0`` of an open release, (steps + 1,).
+
+    Geometric down to ``GRIP_FLOOR * weight / loaded_normal`` (where the
+    gripper's load is a small fraction of the weight), then 0: a release of
+    ``dg`` at level ``g`` makes the lower face slip in proportion to
+    ``dg / g`` (the block's load scales with ``g`` while its elastic lag
+    unloads), so uniform steps put most of the slip into the last few and the
+    rest pose would depend on their number; equal ratios spread it evenly.
+    """
+    if steps == 1 or loaded_normal <= 0:
+        return np.linspace(1.0, 0.0, steps + 1)
+    floor = min(0.5, GRIP_FLOOR * weight / loaded_normal)
+    return np.concatenate([np.geomspace(1.0, floor, steps), [0.0]])
+
+
+def run_release(model: Model, state: State, release: Release, step, loaded: StepReport | None = None):
+    """Step ``model`` from ``state`` through ``release`` with ``step`` (``fe_contact.step``).
+
+    Returns the final state and the reports of the release steps.
+    """
+    schedule = ReleaseSchedule(model, release, state, loaded)
+    reports: list[StepReport] = []
+    while (command := schedule.next_command(state, reports[-1] if reports else None)) is not None:
+        state, report = step(model, state, command, consume=True)
+        reports.append(report)
+    return state, reports
+
+
+def pad_stiffness(model: Model) -> np.ndarray:
+    """In-plane stiffness of the gripper's hold on each upper-face node (n_upper,), N/m:
+    the gripper's ``stiffness_xy`` (the block's shear stiffness for a rigid
+    gripper) spread over the face by tributary area."""
+    k = model.shear_stiffness if model.gripper.rigid else model.gripper.stiffness_xy
+    return k * model.upper_area / model.upper_area.sum()
+
+
+def gripper_load(model: Model, state: State) -> np.ndarray:
+    """The gripper's hold on the upper face when the release begins, as nodal
+    forces at zero displacement (n_upper, 3), N: its forces in ``state`` (the
+    upper-face rows of ``f_int - f_body``; the contact acts on the lower face
+    only) plus the in-plane pad springs' ``k_i u_i`` (so that the pad's force
+    at displacement ``u`` is ``load - k u``, the force in ``state`` at ``u``
+    of ``state``)."""
+    f_int, _ = internal_force(model.geometry, model.mesh.elements, state.displacement, model.material)
+    if model.body_force is not None:
+        f_int = f_int - model.body_force
+    load = f_int.reshape(-1, 3)[model.mesh.upper]
+    load[:, :2] += pad_stiffness(model)[:, None] * state.displacement[model.mesh.upper, :2]
+    return load
+
+
+def open_loading(model: Model, state: State, grip: float, upper_load: np.ndarray) -> Loading:
+    """Applied loads of an open-release step to ``grip``: the weight, the
+    gripper's hold scaled by ``grip`` (its preload and its in-plane pad
+    springs together, :func:`gripper_load`) and the regularising springs on the
+    contact nodes anchored at ``state`` (:mod:`fe_contact.loads`)."""
+    upper, lower = model.mesh.upper, model.mesh.lower
+    external = np.zeros((model.mesh.n_nodes, 3))
+    external[upper] = grip * upper_load
+    external = external.ravel()
+    if model.body_force is not None:
+        external += model.body_force
+    spring, anchor = np.zeros((model.mesh.n_nodes, 3)), np.array(state.displacement, dtype=float)
+    spring[upper, :2] = grip * pad_stiffness(model)[:, None]
+    anchor[upper] = 0.0
+    beta = model.options.release_stiffness
+    spring[lower] = (beta * model.shear_stiffness * model.lower_area / model.lower_area.sum())[:, None]
+    return Loading(external=external, spring=spring.ravel(), anchor=anchor.ravel(),
+                   diagonal=model.diagonal, tension_only_geometric=True)
+
+
+def open_step(model: Model, state: State, command: Command, t0: float, local_problem_hook=None,
+              consume: bool = False) -> tuple[State, StepReport]:
+    """One step of an open release (see the module docstring); ``command``
+    gives the fraction of the gripper's hold released (``open``) and moves nothing."""
+    from dataclasses import replace
+
+    from .newton import equilibrium
+    from .step import next_state
+
+    if command.moves:
+        raise ValueError("the gripper has let go of the upper face: a command can no longer move it")
+    upper_load = state.upper_load if state.upper_load is not None else gripper_load(model, state)
+    grip = state.grip - command.open
+    grip = 0.0 if grip <= 1e-12 else grip
+    released = model.released()
+    loading = open_loading(model, state, grip, upper_load)
+    U = np.array(state.displacement, dtype=float)
+    eq = equilibrium(released, state, U, local_problem_hook, consume, loading)
+    # the balance in measure: contact + weight + the hold's preload - every spring = 0
+    report = measure(released, state, command, eq, t0, loading, {"upper_force": grip * upper_load.sum(axis=0),
+                                                                 "grip": grip})
+    spring_f = loading.spring_force(eq.displacement).reshape(-1, 3)
+    pad_f = grip * upper_load - spring_f[model.mesh.upper]
+    report = replace(report, upper_force=pad_f.sum(axis=0),
+                     regularisation_force=float(np.linalg.norm(spring_f[model.mesh.lower])))
+    if not report.converged:
+        return state, report
+    return next_state(state, eq, state.upper_translation, state.upper_rotation, report, plate=state.plate,
+                      grip=grip, upper_load=upper_load), report

@@ -1,0 +1,109 @@
+"""The release in pushplan (issue 19): the scenario tables, their validation, and
+``simulate``'s rest pose in summary.json; coarse rubber block."""
+
+import json
+import math
+
+import pytest
+
+from pushplan.cli import EXIT_BAD_INPUT, main
+from pushplan.config import parse_scenario
+from pushplan.config.files import read_toml
+
+REST_FORCE_RTOL = 1e-8  # issue: in-plane contact forces at rest <= 1e-8 of the weight
+REST_POSE_RTOL = 1e-6  # issue: lift rest pose = commanded motion to 1e-6 of the lag
+REST_KEYS = {"mode", "lower_centroid", "lower_yaw_deg", "upper_centroid", "normal_force", "tangential_force",
+             "strain_energy", "status"}
+
+RUBBER = """
+name = "rubber"
+[block]
+size = [0.04, 0.03, 0.02]
+elements = [4, 3, 2]
+quadrature = 2
+[material]
+young = 2e6
+poisson = 0.45
+density = 1000.0
+[friction]
+mu_x = 0.6
+mu_y = 0.2
+angle_deg = 20.0
+[[load]]
+dz = -4e-4
+[[load]]
+dx = 1e-3
+dy = 5e-4
+dtheta_deg = 2.0
+repeat = 3
+[release]
+mode = "open"
+steps = 4
+"""
+
+
+def simulate(tmp_path, text, name="s"):
+    (tmp_path / f"{name}.toml").write_text(text)
+    out = tmp_path / f"out_{name}"
+    assert main(["simulate", str(tmp_path / f"{name}.toml"), "--out", str(out), "--quiet", "--no-recording"]) == 0
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_scenario_tables_round_trip(tmp_path):
+    text = RUBBER + "[gripper]\nstiffness_xy = 4e4\nstiffness_yaw = 5.0\n"
+    (tmp_path / "s.toml").write_text(text)
+    s = parse_scenario(read_toml(tmp_path / "s.toml"))
+    assert s.density == 1000.0 and s.release.mode == "open" and s.release.steps == 4
+    assert s.gripper.stiffness_xy == 4e4
+    assert parse_scenario(s.to_dict()) == s
+    plain = parse_scenario(read_toml(tmp_path / "s.toml") | {"release": {"mode": "lift"}})
+    assert plain.release.steps == 16 and parse_scenario(plain.to_dict()) == plain
+
+
+BAD = {
+    "open without weight": (("density = 1000.0", "density = 0.0"), "release.mode"),
+    "negative density": (("density = 1000.0", "density = -1.0"), "material.density"),
+    "negative stiffness": (("[release]", "[gripper]\nstiffness_xy = -1.0\nstiffness_yaw = 1.0\n[release]"),
+                           "gripper.stiffness_xy"),
+    "zero steps": (("steps = 4", "steps = 0"), "release.steps"),
+    "unknown mode": (('mode = "open"', 'mode = "drop"'), "release.mode"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_bad_release_input_exits_2_naming_the_key(name, tmp_path, capsys):
+    (old, new), key = BAD[name]
+    assert old in RUBBER
+    (tmp_path / "s.toml").write_text(RUBBER.replace(old, new))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    rc = main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet", "--no-recording"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == EXIT_BAD_INPUT
+    assert len(err) == 1 and err[0].startswith("pushplan: error: ") and key in err[0], err
+    assert not (tmp_path / "out").exists()
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_simulate_open_release_writes_the_rest_pose(tmp_path):
+    summary = simulate(tmp_path, RUBBER)
+    rest, steps = summary["rest"], summary["steps"]
+    assert set(rest) == REST_KEYS and rest["status"] == "converged" and rest["mode"] == "open"
+    assert len(steps) > 4 + 4  # the release steps are steps like any other
+    opened = [s["command"].get("open") for s in steps[4:8]]
+    assert all(o > 0 for o in opened) and sum(opened) == pytest.approx(1.0, abs=1e-12)
+    weight = 1000.0 * 9.81 * 0.04 * 0.03 * 0.02
+    assert rest["normal_force"] == pytest.approx(weight, rel=1e-8)
+    assert math.hypot(*rest["tangential_force"]) <= REST_FORCE_RTOL * weight
+    assert rest["lower_centroid"] == steps[-1]["lower_centroid"]
+    assert summary["scenario"]["release"] == {"mode": "open", "steps": 4}
+
+
+def test_simulate_lift_rests_under_the_commanded_upper_face(tmp_path):
+    text = RUBBER.replace("density = 1000.0", "density = 0.0").replace('mode = "open"', 'mode = "lift"')
+    summary = simulate(tmp_path, text)
+    rest, loaded = summary["rest"], summary["steps"][3]
+    lag = math.hypot(*loaded["lag"])
+    assert math.dist(rest["lower_centroid"][:2], [3e-3, 1.5e-3]) <= REST_POSE_RTOL * lag
+    assert rest["lower_yaw_deg"] == pytest.approx(6.0, abs=REST_POSE_RTOL * lag / 0.04 * 180 / math.pi)
+    press_work = summary["steps"][0]["normal_force"] * 4e-4  # an energy scale of the loaded block, J
+    assert rest["strain_energy"] <= 1e-9 * press_work
