@@ -95,6 +95,16 @@ class Observations:
         return Observations(self.commands[:n], {k: v[:n] for k, v in self.values.items()})
 
 
+def leading_press(obs: Observations) -> tuple[Command, ...]:
+    """The leading rows of ``obs`` that move the upper face only vertically (the press)."""
+    out = []
+    for c in obs.commands:
+        if c.dx or c.dy or c.dtheta:
+            break
+        out.append(c)
+    return tuple(out)
+
+
 def observations_to_csv(obs: Observations) -> str:
     """The CSV form (floats written exactly: ``repr`` round-trips)."""
     out = io.StringIO()

@@ -23,7 +23,7 @@ import numpy as np
 from fe_contact import Command
 
 from ..config.commands import commands_to_list
-from ..config.observations import Observations
+from ..config.observations import Observations, leading_press
 from ..config.scenario import Scenario
 from ..errors import InputError
 from .fit import _jacobian, covariance, scales
@@ -87,16 +87,6 @@ class Suggestion:
                 "predicted_identifiable": dict(zip(self.names, self.identifiable)), "fe_rollouts": self.fe_rollouts}
 
 
-def press_rows(obs: Observations) -> tuple[Command, ...]:
-    """The leading rows of ``obs`` that only move the upper face vertically (the press)."""
-    out = []
-    for c in obs.commands:
-        if c.dx or c.dy or c.dtheta:
-            break
-        out.append(c)
-    return tuple(out)
-
-
 def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fit=("mu_x", "mu_y", "angle_deg"),
             distance: float | None = None) -> Suggestion:
     """``n`` pushes for ``scenario`` (its friction the current estimate), see the module docstring.
@@ -107,7 +97,7 @@ def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fi
         The observations have no press or no in-plane push (nothing to take the press
         and the push length from) and no ``distance`` is given.
     """
-    press = press_rows(obs)
+    press = leading_press(obs)
     if not press:
         raise InputError("--suggest needs observations that start with the press (dz-only rows)")
     if distance is None:

@@ -54,11 +54,16 @@ class Rollout:
 
 class FeRollouts:
     """The FE model on one mesh, pressed once; every rollout branches from the pressed
-    state (``drive`` never mutates its start state).  Counts rollouts; times the press."""
+    state (``drive`` never mutates its start state).  Counts rollouts; times the press.
 
-    def __init__(self, model: Model, press: tuple[Command, ...], label: str):
+    ``after``: commands already executed after the press (re-planning from a measured
+    state); they are applied once with the press, and rollout poses are then relative
+    to the pose they leave (row 0 is zero)."""
+
+    def __init__(self, model: Model, press: tuple[Command, ...], label: str, after: tuple[Command, ...] = ()):
         self.model = model
-        self.press = press
+        self.press = tuple(press) + tuple(after)
+        self.relative = bool(after)
         self.label = label
         self.count = 0
         self.press_time = 0.0
@@ -99,6 +104,8 @@ class FeRollouts:
         run = self._drive(planar_commands(commands), pressed.state, keep_states=True)
         lower = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in (pressed.reports[-1], *run.reports)])
         upper = np.array([[*s.upper_translation[:2], s.upper_rotation] for s in run.states])
+        if self.relative:
+            lower, upper = lower - lower[0], upper - upper[0]
         wall = time.perf_counter() - t0
         self.count += 1
         return Rollout(np.array(commands, float), lower, upper, tuple(run.reports), tuple(run.summary.steps), wall)
