@@ -78,11 +78,12 @@ def test_plan_from_refuses_observations_without_the_pose(tmp_path, capsys):
     assert not (tmp_path / "p").exists()
 
 
-def test_closed_loop_with_identification_beats_the_open_loop(tmp_path):
+@pytest.mark.parametrize("identify", [False, True])
+def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identify):
     model = write(tmp_path, "model.toml", 0.3, 0.15)
     truth = write(tmp_path, "truth.toml", 0.39, 0.195, plan=False)  # friction 30 % above the model's
-    code = main(["closed-loop", str(model), "--truth", str(truth), "--out", str(tmp_path / "cl"), "--identify",
-                 "--quiet", "--no-recording"])
+    code = main(["closed-loop", str(model), "--truth", str(truth), "--out", str(tmp_path / "cl"), "--quiet",
+                 *(["--identify"] if identify else []), *([] if identify else ["--no-recording"])])
     assert code == 0
     doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
     closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
@@ -92,6 +93,12 @@ def test_closed_loop_with_identification_beats_the_open_loop(tmp_path):
     # the loop ends where its last observation says
     x, y, _ = doc["iterations"][-1]["observed_pose"]
     assert math.hypot(x - TARGET[0], y - TARGET[1]) == pytest.approx(closed["position"], rel=1e-12)
+    assert (tmp_path / "cl" / "recording.rrd").exists() == identify
     est = doc["final_estimates"]
+    if not identify:
+        assert est is None and doc["iterations"][-1]["planned_with"]["mu_x"] == 0.3
+        return
+    # the plan pushes near t_x: mu_x is identified, mu_y not (kept at the model's value, flagged)
+    assert not est["mu_y"]["identifiable"]
     assert est["mu_x"]["identifiable"] and abs(est["mu_x"]["estimate"] - 0.39) <= 0.03 * 0.39
     assert doc["iterations"][-1]["planned_with"]["mu_x"] == pytest.approx(0.39, rel=0.03)

@@ -138,8 +138,11 @@ def test_suggested_pushes_identify_at_least_as_well_as_one_direction(tmp_path):
     assert code == 0
     doc_two = json.loads((out / "identified.json").read_text())
     p1, p2 = doc_one["parameters"], doc_two["parameters"]
+    assert all(p1[k]["identifiable"] for k in TRUTH)  # world x is 25 deg off the axes: identifiable, but weakly
     assert all(p2[k]["identifiable"] for k in TRUTH)
     assert worst_normalised_sigma(doc_two) <= worst_normalised_sigma(doc_one)
+    for k in TRUTH:
+        assert p2[k]["sigma"] <= p1[k]["sigma"], k
     err = [max(abs(p[k]["estimate"] - TRUTH[k]) / (0.1 * TRUTH[k]) for k in ("mu_x", "mu_y")) for p in (p1, p2)]
     assert err[1] <= max(err[0], 0.3)  # as close as one direction (or within 3 % of each mu)
     # the FE-predicted sigmas of the suggestion are those its identification reports

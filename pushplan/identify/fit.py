@@ -13,8 +13,8 @@ A parameter is *identifiable* when its standard deviation is finite and below
 :data:`REL_SIGMA_LIMIT` of its value (``mu``, ``young``) or :data:`ANGLE_SIGMA_LIMIT_DEG`;
 :mod:`.reasons` says why not.  The fit starts from the reduced-model estimate of
 :mod:`.prefit` when the observations allow it, else from the scenario's values.
-Parameters not identifiable at the start are kept fixed (a fit would only chase the
-noise along them) and the others fitted; if one becomes identifiable at the estimate,
+Parameters not identifiable at the start are kept fixed at the scenario's value (a
+fit would only chase the noise along them) and the others fitted; if one becomes identifiable at the estimate,
 all are fitted again from there.
 """
 
@@ -219,8 +219,12 @@ def identify(scenario: Scenario, obs: Observations, noise: NoiseModel | None = N
     free = np.array(_flags(names, start, J0, obs, noise))
     if not free.any():
         free[:] = True
-    if log is not None and not free.all():
-        log("  not identifiable at the start, kept fixed: " + ", ".join(k for k, f in zip(names, free) if not f))
+    if not free.all():  # kept at the scenario's value: the prefit's value along them is arbitrary
+        start[~free] = initial[~free]
+        J0 = None
+        if log is not None:
+            log("  not identifiable at the start, kept at the scenario's value: "
+                + ", ".join(k for k, f in zip(names, free) if not f))
     theta, r, J, iterations, converged = levenberg_marquardt(predict, y, sigma, names, start, free, log, J0)
     flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
     if not free.all() and any(f and not fr for f, fr in zip(flags, free)):
