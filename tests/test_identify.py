@@ -169,3 +169,43 @@ def test_bad_observation_file_exits_2_and_writes_nothing(tmp_path, capsys, case)
     assert err.startswith("pushplan: error: ") and err.count("\n") == 1 and "Traceback" not in err
     assert str(path) in err
     assert not out.exists()
+
+
+def test_fit_young_recovers_the_stiffness_with_the_friction(tmp_path):
+    # noise-free observations of the truth; the guess is 30 % soft and isotropic
+    obs = observe_clean(tmp_path, push(10.0, 2) + push(100.0, 2))
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    guess.write_text(guess.read_text().replace("young = 210e9", "young = 150e9"))
+    out = tmp_path / "id"
+    assert main(["identify", str(guess), "--observations", str(obs), "--out", str(out), "--quiet",
+                 "--fit", "young"]) == 0
+    p = json.loads((out / "identified.json").read_text())["parameters"]
+    assert p["young"]["initial"] == 150e9 and p["young"]["identifiable"]
+    assert p["young"]["estimate"] == pytest.approx(210e9, rel=1e-3)
+    assert p["mu_x"]["estimate"] == pytest.approx(TRUTH["mu_x"], rel=1e-3)
+    assert tomllib.loads((out / "identified.toml").read_text())["material"]["young"] == p["young"]["estimate"]
+
+
+def observe_clean(tmp_path, pushes):
+    truth = write_scenario(tmp_path / "truth.toml", "truth", TRUTH, pushes)
+    path = tmp_path / "clean.json"
+    assert main(["simulate", str(truth), "--out", str(tmp_path / "sim"), "--quiet", "--no-recording",
+                 "--observations", str(path)]) == 0
+    return path
+
+
+def test_toml_writer_round_trips_scenarios():
+    from pathlib import Path
+
+    from pushplan.config import parse_scenario
+    from pushplan.outputs.toml import toml_text
+
+    for path in sorted((Path(__file__).resolve().parents[1] / "pushplan" / "scenarios").glob("*.toml")):
+        data = tomllib.loads(path.read_text())
+        if "block" not in data:
+            continue  # a sweep file
+        scenario = parse_scenario(data, "s")
+        text = toml_text(scenario.to_dict(), "a header\nof two lines")
+        assert text.startswith("# a header\n# of two lines\n")
+        assert tomllib.loads(text) == scenario.to_dict()
+        assert parse_scenario(tomllib.loads(text)) == scenario

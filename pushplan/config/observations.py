@@ -64,6 +64,7 @@ class Observations:
     values: dict
 
     def __post_init__(self):
+        object.__setattr__(self, "values", dict(self.values))  # the caller's dict is not changed
         if not self.commands:
             raise InputError("observations: no rows (at least one executed command is needed)")
         for name, v in self.values.items():
@@ -89,10 +90,6 @@ class Observations:
         """One dict per command: the command's four keys, then the observed columns."""
         return [{**command_to_dict(c), **{k: float(self.values[k][i]) for k in self.columns}}
                 for i, c in enumerate(self.commands)]
-
-    def head(self, n: int) -> Observations:
-        """The first ``n`` rows."""
-        return Observations(self.commands[:n], {k: v[:n] for k, v in self.values.items()})
 
 
 def leading_press(obs: Observations) -> tuple[Command, ...]:
