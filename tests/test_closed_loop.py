@@ -90,6 +90,11 @@ def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identi
     assert closed["within_tolerance"] and closed["position"] <= TOLERANCE
     assert open_["position"] >= 10 * closed["position"]
     assert len(doc["iterations"]) == 4
+    # each plan behind a push ends at the target (on the model it was planned with)
+    for it in doc["iterations"]:
+        end = it["planned_path"][-1]
+        assert math.hypot(end[0] - TARGET[0], end[1] - TARGET[1]) <= TOLERANCE
+        assert len(it["planned_path"]) == 4 - it["step"] + 2
     # the loop ends where its last observation says
     x, y, _ = doc["iterations"][-1]["observed_pose"]
     assert math.hypot(x - TARGET[0], y - TARGET[1]) == pytest.approx(closed["position"], rel=1e-12)

@@ -1,8 +1,10 @@
 """``pushplan closed-loop SCENARIO --truth TRUTH.toml --out DIR [--identify]``: execute
 the plan of SCENARIO one push at a time on TRUTH (the same block on other friction),
 observe, re-identify (``--identify``), re-plan; compare with the open-loop plan.
-Writes ``DIR/closed_loop.json`` and ``DIR/recording.rrd`` (the truth's closed-loop run,
-with the closed- and open-loop paths of the lower face as plan overlays).
+Writes ``DIR/closed_loop.json`` (each iteration: command, observed pose, the planned
+path behind it, the friction it was planned with, the estimates) and ``DIR/recording.rrd``
+(the truth's closed-loop run; at each push ``plan/replanned``, the plan behind it; the
+closed- and open-loop paths of the lower face as ``plan/verified`` / ``plan/naive``).
 
 Exit status 3 when the closed loop ends outside the tolerance (the files are written);
 2 for bad input (nothing written).
@@ -20,15 +22,18 @@ def _recording(path, scenario, truth_runs, spec) -> None:
 
     from ..outputs.recording import Recorder
 
-    closed, open_ = truth_runs
+    closed, open_, planned = truth_runs
+    n_press = len(closed.steps) - len(planned)
     dims = 3 if spec.yaw_targeted else 2
 
     def path_of(t):
         return np.array([[s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw] for s in t.steps])[:, :dims]
 
     with Recorder(path, f"closed_loop_{scenario.name}", closed.model.mesh, scenario=scenario.to_dict()) as rec:
-        for rep, summary in zip(closed.reports, closed.steps, strict=True):
+        for i, (rep, summary) in enumerate(zip(closed.reports, closed.steps, strict=True)):
             rec.log_step(rep, summary)
+            if i >= n_press:  # the plan behind this push
+                rec.log_path("replanned", planned[i - n_press])
         rec.log_plan(target=np.array(spec.target)[:dims], verified=path_of(closed), naive=path_of(open_))
 
 

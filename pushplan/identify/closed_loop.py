@@ -72,10 +72,12 @@ class Iteration:
     plan_fe_rollouts: int
     identified: dict | None
     wall_time: float
+    planned: np.ndarray  # (n, 3) lower-face path of the plan behind the push, from rest (m, rad)
 
     def to_dict(self) -> dict:
         x, y, yaw = (float(v) for v in self.observed)
         return {"step": self.step, "command": command_to_dict(self.command), "observed_pose": [x, y, math.degrees(yaw)],
+                "planned_path": [_pose_json(p) for p in self.planned],
                 "planned_with": self.friction, "plan_status": self.plan_status,
                 "plan_fe_rollouts": self.plan_fe_rollouts, "identified": self.identified, "wall_time_s": self.wall_time}
 
@@ -121,8 +123,9 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log):
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
         result, _ = replan(model_sc, spec, obs)
     command = planar_commands(result.commands[:1])[0]
+    planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     truth.execute([command])
-    return model_sc, result, command, identified
+    return model_sc, result, command, identified, planned
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
@@ -139,9 +142,10 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     iterations, current = [], model_sc
     for k in range(spec.steps):
         t0 = time.perf_counter()
-        current, result, command, identified = _step(current, spec, truth, k, first, use_identify, noise, log)
+        current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify, noise,
+                                                              log)
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
-                                    sum(result.rollouts.values()), identified, time.perf_counter() - t0))
+                                    sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
             log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
@@ -156,7 +160,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
         "final_estimates": final,
         "iterations": [it.to_dict() for it in iterations],
         "wall_time_s": time.perf_counter() - t_start,
-        "_truth": (truth, open_truth),
+        "_truth": (truth, open_truth, [it.planned for it in iterations]),
     }
 
 
