@@ -3,6 +3,7 @@
 timed from start to exit.
 
     python benchmarks/identify.py
+    python benchmarks/identify.py --coverage 20     # are the sigmas calibrated? (20 noise draws)
 
 The truth is the steel block of the planning scenarios (20 x 20 x 10 mm, pressed
 0.1 mm) on mu_x = 0.32, mu_y = 0.18 with t_x at 25 deg; observations come from
@@ -122,6 +123,46 @@ def row(c: dict) -> str:
             + f" | {c['doc']['solver']['fe_rollouts']} | {c['identify_s']:.1f} |")
 
 
+def coverage(draws: int) -> dict:
+    """Identify the same truth under ``draws`` noise draws (4 x 4 x 2 mesh, three directions,
+    in-process) and count how often the true value lies within 1, 2, 3 sigma."""
+    import dataclasses
+    import math
+
+    from fe_contact import Command
+    from pushplan.config import parse_scenario
+    from pushplan.identify import NoiseModel, identify
+    from pushplan.run import drive
+    from pushplan.run.observations import observations_from_steps
+    import tomllib
+
+    truth = parse_scenario(tomllib.loads(SCENARIO.format(name="truth", elements=[4, 4, 2], pushes="", plan="",
+                                                         **TRUTH)))
+    cmds = [Command(0.0, 0.0, -1e-4, 0.0)] + [Command(1e-4 * math.cos(math.radians(d)), 1e-4 * math.sin(math.radians(d)),
+                                                      0.0, 0.0) for d in (10, 10, 100, 100, 200)]
+    clean = observations_from_steps(drive(truth.model(), cmds).summary.steps)
+    guess = dataclasses.replace(truth, **GUESS)
+    z = {k: [] for k in TRUTH}
+    rollouts, times = [], []
+    for seed in range(draws):
+        res = identify(guess, noisy(clean, 100 + seed), NoiseModel(1e-6, 1.0, 0.01))
+        for k in TRUTH:
+            z[k].append((res.value(k) - TRUTH[k]) / res.sigma[res.names.index(k)])
+        rollouts.append(res.fe_rollouts)
+        times.append(res.wall_time)
+    out = {k: {"within_1": float(np.mean(np.abs(v) <= 1)), "within_2": float(np.mean(np.abs(v) <= 2)),
+               "within_3": float(np.mean(np.abs(v) <= 3)), "mean_z": float(np.mean(v)), "std_z": float(np.std(v))}
+           for k, v in z.items()}
+    print(f"coverage over {draws} noise draws (Gaussian: 0.68 / 0.95 / 0.997 within 1 / 2 / 3 sigma; z = error / sigma):")
+    for k, c in out.items():
+        print(f"  {k:>9}: {c['within_1']:.2f} / {c['within_2']:.2f} / {c['within_3']:.2f}, "
+              f"mean z {c['mean_z']:+.2f}, std z {c['std_z']:.2f}")
+    print(f"  FE rollouts {min(rollouts)}-{max(rollouts)}, identify {min(times):.1f}-{max(times):.1f} s")
+    payload = {"draws": draws, "coverage": out, "z": z, "fe_rollouts": rollouts, "wall_time_s": times}
+    print(f"wrote {write_results('identify_coverage', payload)}")
+    return payload
+
+
 def main() -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -149,4 +190,9 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--coverage", type=int, metavar="N", help="only the coverage study, N noise draws")
+    args = parser.parse_args()
+    coverage(args.coverage) if args.coverage else main()
