@@ -18,7 +18,7 @@ from ..errors import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, InputError, SolverFail
 
 # each module has ``register(subparsers)`` and imports its heavy dependencies
 # (numpy, fe_contact, casadi, mujoco, rerun) inside the command function only
-COMMAND_MODULES = ("simulate", "demo", "paper", "plan", "replay", "mujoco", "sweep", "convergence")
+COMMAND_MODULES = ("simulate", "demo", "paper", "plan", "replay", "mujoco", "sweep", "convergence", "identify", "closed_loop")
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_SOLVER_FAILURE", "build_parser", "main"]
 

@@ -72,16 +72,25 @@ def cmd_plan(args) -> int:
     if isinstance(table, dict) and table.get("frame") == "world":
         scenario, origin = _world_frame(args.scenario)
     spec = parse_plan(scenario, world_origin=origin)
+    start = None
+    if args.from_observations:
+        from ..config.observations import read_observations
+        from ..planning.replan import measured_start, remaining_spec
+
+        start = measured_start(scenario, spec, read_observations(args.from_observations))
+        full_spec, spec = spec, remaining_spec(spec, start)
     out = prepare_output_dir(args.out)
 
     def log(text):
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    result = plan(scenario, spec, log=log)
+    result = plan(scenario, spec, log=log, after=start.executed if start else ())
     doc = plan_document(result)
     if spec.world_origin is not None:
         doc["world"] = _world_poses(doc, spec)
+    if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
+        doc["from"] = {"observations": args.from_observations, **start.to_dict(), "full_plan": full_spec.to_dict()}
     if args.verification_error:
         doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
     atomic_write_json(out / "plan.json", doc)
@@ -121,6 +130,9 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file with a [plan] table")
     p.add_argument("--out", required=True, help="output folder (plan.json, recording.rrd)")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
+    p.add_argument("--from", dest="from_observations", metavar="OBSERVATIONS",
+                   help="re-plan the remaining steps from the last observed pose of this observation file (.csv or "
+                   ".json: the press and the pushes executed so far); poses in plan.json are then relative to it")
     p.add_argument("--verification-error", action="store_true",
                    help="also run the plan on two coarser meshes and state the GCI of the verification mesh "
                    "(plan.json: verification_error)")

@@ -50,14 +50,22 @@ def cmd_simulate(args) -> int:
     if not (scenario.commands if commands is None else commands):
         raise InputError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
     model = scenario.model()  # mesh and material checks before anything is written
+    observers = []
+    if args.observations:
+        from ..config.observations import observation_format
+        from ..run.observations import ObservationsFile
+
+        observation_format(args.observations)
+        observers.append(ObservationsFile(args.observations))
     out = prepare_output_dir(args.out)
     fclib_dir = prepare_output_dir(args.export_fclib) if args.export_fclib else None
     run = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
-                   recording=not args.no_recording, export_fclib=fclib_dir)
+                   recording=not args.no_recording, export_fclib=fclib_dir, observers=observers)
     if not args.quiet:
         print_steps(run.summary.steps)
         print_rest(run.summary)
-        print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
+        print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'}"
+              + (f" and {args.observations}" if args.observations else "") + f" ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 
 
@@ -66,6 +74,9 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file")
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz)")
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
+    p.add_argument("--observations", metavar="FILE",
+                   help="also write the run as an observation file (.csv or .json: commands, lower-face pose, "
+                   "force on the gripper; see pushplan.config.observations)")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--export-fclib", metavar="DIR",

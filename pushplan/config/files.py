@@ -35,6 +35,15 @@ def read_toml(path, what: str = "scenario") -> dict:
         raise InputError(f"malformed TOML in {path}: {exc}") from None
 
 
+def read_text(path, what: str) -> str:
+    """A UTF-8 text file; ``what`` names the file kind in messages."""
+    path = Path(path)
+    try:
+        return _read_bytes(path, what).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"cannot read {what} file {path}: {exc}") from None
+
+
 def read_json(path, what: str) -> object:
     """Parse a JSON file; ``what`` names the file kind in messages."""
     path = Path(path)

@@ -41,6 +41,9 @@ Entities (``Archetype:field`` columns in the file)::
                          ``lower_centroid``, ``upper_centroid`` (m, float64);
                          what ``pushplan replay`` re-executes and compares.
 
+A path logged at the current step (:meth:`Recorder.log_path`, e.g. each re-plan of
+``pushplan closed-loop``): ``plan/<name>`` LineStrips3D + Points3D of lower-face poses.
+
 Plans (:meth:`Recorder.log_plan`, for the planner)::
 
     recorder.log_plan(target=(x, y, yaw), predicted=P, verified=V, naive=N, cost=c)
@@ -419,6 +422,14 @@ class Recorder:
                 columns=rr.Scalars.columns(scalars=c),
             )
             self.stream.send_blueprint(self._blueprint(plan=True), make_active=False, make_default=True)
+
+    def log_path(self, name: str, poses, colour=(160, 80, 220)) -> None:
+        """Log lower-face poses ``(n, 2 or 3)`` (m, rad) as ``plan/<name>`` at the current step
+        (after :meth:`log_step`): a path that changes along the run."""
+        xy = _poses(name, poses)[:, :2]
+        xyz = np.column_stack([xy, np.zeros(len(xy))])
+        self.stream.log(f"plan/{name}", self._rr.LineStrips3D([xyz], colors=[colour], labels=[name]),
+                        self._rr.Points3D(xyz, colors=[colour]))
 
     # -- closing -----------------------------------------------------------------------
     def close(self) -> Path:

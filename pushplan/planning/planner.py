@@ -160,7 +160,7 @@ def _status(spec: PlanSpec, verified: Rollout, reach: str) -> tuple[str, str]:
                              "per mesh; the best verified plan is reported")
 
 
-def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None) -> PlanResult:
+def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -> PlanResult:
     """Plan the commands of the scenario's ``[plan]`` table (see the module docstring).
 
     Parameters
@@ -171,6 +171,9 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None) -> PlanResu
         Defaults to ``parse_plan(scenario)``.
     log : callable(str), optional
         Receives one line per phase / iteration.
+    after : sequence of fe_contact.Command, optional
+        Commands already executed after the press (:mod:`.replan`): the plan starts
+        from the state they leave, its poses relative to that state's lower face.
 
     Raises
     ------
@@ -188,8 +191,8 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None) -> PlanResu
         _log_line(log, "warning: " + reach)
     release = scenario.release  # the rollouts show the rest pose whenever the scenario lets go
     coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature),
-                        press, "planning", release)
-    fine = FeRollouts(scenario.model(), press, "verification", release)
+                        press, "planning", release=release, after=after)
+    fine = FeRollouts(scenario.model(), press, "verification", release=release, after=after)
     naive = naive_commands(spec)
     t0 = time.perf_counter()
     params, springback = _calibrate(coarse, spec, naive, log)

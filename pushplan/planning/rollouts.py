@@ -68,11 +68,17 @@ class Rollout:
 
 class FeRollouts:
     """The FE model on one mesh, pressed once; every rollout branches from the pressed
-    state (``drive`` never mutates its start state).  Counts rollouts; times the press."""
+    state (``drive`` never mutates its start state).  Counts rollouts; times the press.
 
-    def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None):
+    ``after``: commands already executed after the press (re-planning from a measured
+    state); they are applied once with the press, and rollout poses are then relative
+    to the pose they leave (row 0 is zero)."""
+
+    def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None,
+                 after: tuple[Command, ...] = ()):
         self.model = model
-        self.press = press
+        self.press = tuple(press) + tuple(after)
+        self.relative = bool(after)
         self.label = label
         self.release = release
         self.count = 0
@@ -121,6 +127,10 @@ class FeRollouts:
         upper = np.array([[*s.upper_translation[:2], s.upper_rotation] for s in run.states[:K + 1]])
         rest = run.summary.rest
         rest = None if rest is None else np.array([*rest.lower_centroid[:2], rest.lower_yaw])
+        if self.relative:  # poses from the pose the executed commands left
+            origin = lower[0].copy()
+            lower, upper = lower - origin, upper - upper[0]
+            rest = None if rest is None else rest - origin
         wall = time.perf_counter() - t0
         self.count += 1
         return Rollout(np.array(commands, float), lower, upper, tuple(loaded), tuple(run.summary.steps[:K]), wall,

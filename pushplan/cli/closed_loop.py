@@ -1,0 +1,81 @@
+"""``pushplan closed-loop SCENARIO --truth TRUTH.toml --out DIR [--identify]``: execute
+the plan of SCENARIO one push at a time on TRUTH (the same block on other friction),
+observe, re-identify (``--identify``), re-plan; compare with the open-loop plan.
+Writes ``DIR/closed_loop.json`` (each iteration: command, observed pose, the planned
+path behind it, the friction it was planned with, the estimates) and ``DIR/recording.rrd``
+(the truth's closed-loop run; at each push ``plan/replanned``, the plan behind it; the
+closed- and open-loop paths of the lower face as ``plan/verified`` / ``plan/naive``).
+
+Exit status 3 when the closed loop ends outside the tolerance (the files are written);
+2 for bad input (nothing written).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import EXIT_SOLVER_FAILURE
+
+
+def _recording(path, scenario, truth_runs, spec) -> None:
+    import numpy as np
+
+    from ..outputs.recording import Recorder
+
+    closed, open_, planned = truth_runs
+    n_press = len(closed.steps) - len(planned)
+    dims = 3 if spec.yaw_targeted else 2
+
+    def path_of(t):
+        return np.array([[s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw] for s in t.steps])[:, :dims]
+
+    with Recorder(path, f"closed_loop_{scenario.name}", closed.model.mesh, scenario=scenario.to_dict()) as rec:
+        for i, (rep, summary) in enumerate(zip(closed.reports, closed.steps, strict=True)):
+            rec.log_step(rep, summary)
+            if i >= n_press:  # the plan behind this push
+                rec.log_path("replanned", planned[i - n_press])
+        rec.log_plan(target=np.array(spec.target)[:dims], verified=path_of(closed), naive=path_of(open_))
+
+
+def cmd_closed_loop(args) -> int:
+    from ..config import load_scenario
+    from ..config.plan import parse_plan
+    from ..identify import NoiseModel
+    from ..identify.closed_loop import closed_loop
+    from ..outputs import atomic_write_json, prepare_output_dir
+
+    scenario = load_scenario(args.scenario)
+    spec = parse_plan(scenario)
+    truth = load_scenario(args.truth)
+    truth.model()
+    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel)
+    out = prepare_output_dir(args.out)
+    log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    doc = closed_loop(scenario, truth, spec, args.identify, noise, log)
+    truth_runs = doc.pop("_truth")
+    atomic_write_json(out / "closed_loop.json", doc)
+    if not args.no_recording:
+        _recording(out / "recording.rrd", scenario, truth_runs, spec)
+    c, o = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
+    print(f"{scenario.name} on {truth.name}: closed loop {c['position'] * 1e6:.3f} um "
+          f"({'within' if c['within_tolerance'] else 'outside'} tolerance {spec.tolerance * 1e6:.3g} um), "
+          f"open loop {o['position'] * 1e6:.3f} um")
+    if doc["final_estimates"]:
+        print("  final estimates: " + ", ".join(f"{k} = {v['estimate']:.5g} +- {v['sigma'] or float('inf'):.2g}"
+                                              for k, v in doc["final_estimates"].items() if k != "fe_rollouts"))
+    print(f"  wrote {out / 'closed_loop.json'} ({doc['wall_time_s']:.1f} s)")
+    return 0 if c["within_tolerance"] else EXIT_SOLVER_FAILURE
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("closed-loop", help="execute a plan push by push on a truth model, re-planning")
+    p.add_argument("scenario", help="planning scenario TOML (the model; [plan] table)")
+    p.add_argument("--truth", required=True, help="scenario TOML of the truth (same block, other friction)")
+    p.add_argument("--out", required=True, help="output folder (closed_loop.json, recording.rrd)")
+    p.add_argument("--identify", action="store_true", help="re-identify the friction after every push")
+    p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise of the identification, m")
+    p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N")
+    p.add_argument("--force-noise-rel", type=float, default=0.01, help="relative force noise")
+    p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_closed_loop)

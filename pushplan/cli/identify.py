@@ -1,0 +1,83 @@
+"""``pushplan identify SCENARIO --observations FILE --out DIR``: estimate the friction
+(``mu_x``, ``mu_y``, ``angle_deg``; ``young`` with ``--fit young``) from observed pushes,
+write ``identified.json`` and ``identified.toml``; ``--suggest N`` proposes N pushes.
+
+The scenario gives the block, mesh, material, solver and the initial friction; its
+``[[load]]`` entries are not used (the observation file holds the executed commands).
+Exit status 3 when the fit did not converge (the files are written); 2 for bad input
+(nothing written).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import EXIT_SOLVER_FAILURE
+
+
+def _print(result, doc) -> None:
+    print(f"{'parameter':>10} {'initial':>10} {'estimate':>12} {'sigma':>10}  identifiable")
+    for k, p in doc["parameters"].items():
+        sigma = "inf" if p["sigma"] is None else f"{p['sigma']:.4g}"
+        print(f"{k:>10} {p['initial']:>10.5g} {p['estimate']:>12.6g} {sigma:>10}  "
+              + ("yes" if p["identifiable"] else f"no: {p['reason']}"))
+    s = doc["solver"]
+    print(f"  chi2 {doc['residual']['chi2']:.4g} for {doc['residual']['values']} values; "
+          f"{s['iterations']} LM iterations, {s['fe_rollouts']} FE rollouts, {s['wall_time_s']:.2f} s")
+
+
+def cmd_identify(args) -> int:
+    from ..config import load_scenario
+    from ..config.observations import read_observations
+    from ..identify import NoiseModel, identify
+    from ..identify.document import identified_document, identified_scenario
+    from ..outputs import atomic_write_bytes, atomic_write_json, prepare_output_dir
+    from ..outputs.toml import toml_text
+
+    scenario = load_scenario(args.scenario)
+    obs = read_observations(args.observations)
+    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, args.yaw_noise_deg)
+    noise.sigma(obs, scenario.size)  # noise checks before anything is written
+    scenario.model()
+    fit = ("mu_x", "mu_y", "angle_deg") + (("young",) if args.fit == "young" else ())
+    if args.suggest is not None and args.suggest < 1:
+        from ..errors import InputError
+
+        raise InputError(f"--suggest must be >= 1, got {args.suggest}")
+    out = prepare_output_dir(args.out)
+    log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    result = identify(scenario, obs, noise, fit, log=log)
+    doc = identified_document(result, scenario, obs, noise, str(args.observations))
+    if args.suggest:
+        from ..identify.design import suggest
+
+        doc["suggested"] = suggest(result.scenario(scenario), obs, noise, args.suggest, fit).to_dict()
+    atomic_write_json(out / "identified.json", doc)
+    atomic_write_bytes(out / "identified.toml", toml_text(
+        identified_scenario(result, scenario), f"{scenario.name} with the friction identified by pushplan identify "
+        f"from {args.observations}").encode())
+    _print(result, doc)
+    if args.suggest:
+        print(f"  suggested pushes (deg from world x): {doc['suggested']['directions_deg']}")
+    print(f"  wrote {out / 'identified.json'}, {out / 'identified.toml'}")
+    if not result.converged:
+        print("pushplan: the fit did not converge; the last iterate is written", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("identify", help="estimate the friction (mu_x, mu_y, angle) from observed pushes")
+    p.add_argument("scenario", help="scenario TOML: block, mesh, material and the initial friction")
+    p.add_argument("--observations", required=True, help="observation file (.csv or .json)")
+    p.add_argument("--out", required=True, help="output folder (identified.json, identified.toml)")
+    p.add_argument("--fit", choices=["young"], help="also estimate Young's modulus")
+    p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise, m (default 1e-6)")
+    p.add_argument("--yaw-noise-deg", type=float, default=None,
+                   help="yaw noise, deg (default: the pose noise at half the face width)")
+    p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N (default 1)")
+    p.add_argument("--force-noise-rel", type=float, default=0.01,
+                   help="force noise as a fraction of each observed value (default 0.01)")
+    p.add_argument("--suggest", type=int, metavar="N", help="propose N push directions that identify the friction")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_identify)

@@ -1,0 +1,168 @@
+"""The closed loop: execute one planned push on the real block (here a *truth* FE
+model: the same block on a surface with other friction), observe its pose and force,
+re-identify the friction if asked, re-plan the remaining pushes from the observed
+state (:mod:`pushplan.planning.replan`), repeat.  The open-loop baseline executes the
+first plan unchanged on the same truth.
+
+Observations are the truth run's exact poses and forces (no noise is added); the
+identification weights them with the stated noise model.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fe_contact import Command, Model, State, StepReport
+
+from ..config.commands import command_to_dict, planar_commands
+from ..config.plan import PlanSpec, press_commands
+from ..config.scenario import Scenario
+from ..errors import SolverFailure
+from ..planning import plan
+from ..planning.replan import replan
+from ..planning.target import pose_error, within_tolerance
+from ..run import StepSummary, drive
+from ..run.observations import observations_from_steps
+from .fit import identify
+from .noise import NoiseModel
+
+
+class TruthFailure(SolverFailure):
+    """An FE step of the truth model failed."""
+
+
+@dataclass
+class Truth:
+    """The truth model's run so far (press, then each executed push)."""
+
+    model: Model
+    state: State
+    reports: list[StepReport] = field(default_factory=list)
+    steps: list[StepSummary] = field(default_factory=list)
+
+    def execute(self, commands) -> None:
+        run = drive(self.model, tuple(commands), self.state)
+        if not run.completed:
+            f = run.summary.failure
+            raise TruthFailure(f"truth FE step {f.step} failed ({f.status}): {f.message}")
+        self.state = run.state
+        self.reports += run.reports
+        self.steps += run.summary.steps
+
+    @property
+    def pose(self) -> np.ndarray:
+        s = self.steps[-1]
+        return np.array([s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw])
+
+
+@dataclass(frozen=True)
+class Iteration:
+    """One push of the closed loop: the command executed, the pose observed after it,
+    the friction the plan behind it used and, with identification, the estimates."""
+
+    step: int
+    command: Command
+    observed: np.ndarray
+    friction: dict
+    plan_status: str
+    plan_fe_rollouts: int
+    identified: dict | None
+    wall_time: float
+    planned: np.ndarray  # (n, 3) lower-face path of the plan behind the push, from rest (m, rad)
+
+    def to_dict(self) -> dict:
+        x, y, yaw = (float(v) for v in self.observed)
+        return {"step": self.step, "command": command_to_dict(self.command), "observed_pose": [x, y, math.degrees(yaw)],
+                "planned_path": [_pose_json(p) for p in self.planned],
+                "planned_with": self.friction, "plan_status": self.plan_status,
+                "plan_fe_rollouts": self.plan_fe_rollouts, "identified": self.identified, "wall_time_s": self.wall_time}
+
+
+def _friction(sc: Scenario) -> dict:
+    return {"mu_x": sc.mu_x, "mu_y": sc.mu_y, "angle_deg": sc.angle_deg}
+
+
+def _error(pose, spec: PlanSpec) -> dict:
+    pos, yaw = pose_error(pose, spec)
+    return {"position": pos, "yaw_deg": math.degrees(yaw) if spec.yaw_targeted else None,
+            "within_tolerance": within_tolerance(pose, spec)}
+
+
+def _identified(result) -> dict:
+    return {k: {"estimate": float(v), "sigma": float(s) if math.isfinite(s) else None, "identifiable": f}
+            for k, v, s, f in zip(result.names, result.estimate, result.sigma, result.identifiable)} | {
+        "fe_rollouts": result.fe_rollouts}
+
+
+def _new_truth(truth_scenario: Scenario, press) -> Truth:
+    model = truth_scenario.model()
+    t = Truth(model, None)
+    run = drive(model, press)
+    if not run.completed:
+        raise TruthFailure(f"truth FE press failed: {run.summary.failure.message}")
+    t.state, t.reports, t.steps = run.state, list(run.reports), list(run.summary.steps)
+    return t
+
+
+def _step(model_sc, spec, truth, k, first, use_identify, noise, log):
+    """Plan (or re-plan) with the current model and execute the next push on the truth."""
+    identified = None
+    if k == 0:
+        result = first
+    else:
+        obs = observations_from_steps(truth.steps)
+        if use_identify:
+            est = identify(model_sc, obs, noise)
+            identified = _identified(est)
+            model_sc = est.scenario(model_sc)
+            if log:
+                log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
+        result, _ = replan(model_sc, spec, obs)
+    command = planar_commands(result.commands[:1])[0]
+    planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
+    truth.execute([command])
+    return model_sc, result, command, identified, planned
+
+
+def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
+                noise: NoiseModel | None = None, log=None) -> dict:
+    """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
+    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing)."""
+    t_start = time.perf_counter()
+    noise = noise or NoiseModel()
+    press = press_commands(model_sc)
+    first = plan(model_sc, spec)
+    open_truth = _new_truth(truth_sc, press)
+    open_truth.execute(planar_commands(first.commands))
+    truth = _new_truth(truth_sc, press)
+    iterations, current = [], model_sc
+    for k in range(spec.steps):
+        t0 = time.perf_counter()
+        current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify, noise,
+                                                              log)
+        iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
+                                    sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
+        if log:
+            log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
+                f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
+    final = _identified(identify(current, observations_from_steps(truth.steps), noise)) if use_identify else None
+    return {
+        "scenario": model_sc.name, "truth": {"name": truth_sc.name, **_friction(truth_sc)},
+        "model": _friction(model_sc), "plan": spec.to_dict(), "identify": use_identify,
+        "open_loop": {"commands": [command_to_dict(c) for c in planar_commands(first.commands)],
+                      "final_pose": _pose_json(open_truth.pose), "final_error": _error(open_truth.pose, spec)},
+        "closed_loop": {"commands": [command_to_dict(it.command) for it in iterations],
+                        "final_pose": _pose_json(truth.pose), "final_error": _error(truth.pose, spec)},
+        "final_estimates": final,
+        "iterations": [it.to_dict() for it in iterations],
+        "wall_time_s": time.perf_counter() - t_start,
+        "_truth": (truth, open_truth, [it.planned for it in iterations]),
+    }
+
+
+def _pose_json(pose) -> list[float]:
+    return [float(pose[0]), float(pose[1]), math.degrees(float(pose[2]))]

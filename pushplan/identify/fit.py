@@ -1,0 +1,262 @@
+"""Weighted least squares of FE predictions against observations.
+
+With the whitened residual ``r(theta) = (y_FE(theta) - y_obs) / sigma`` (the noise
+model of :mod:`.noise`), the estimate minimises ``||r||^2`` by Levenberg-Marquardt
+(Marquardt 1963) in scaled parameters, the Jacobian ``J = dr/dtheta`` by forward
+differences of FE rollouts (one rollout per parameter and iteration).  At the
+estimate the Gauss-Newton covariance is
+
+    Cov = (J^T J)^-1                       (computed from the SVD of J),
+
+whose diagonal gives the standard deviations and whose scaled form the correlation.
+A parameter is *identifiable* when its standard deviation is finite and below
+:data:`REL_SIGMA_LIMIT` of its value (``mu``, ``young``) or :data:`ANGLE_SIGMA_LIMIT_DEG`;
+:mod:`.reasons` says why not.  The fit starts from the reduced-model estimate of
+:mod:`.prefit` when the observations allow it, else from the scenario's values.
+Parameters not identifiable at the start are kept fixed at the scenario's value (a
+fit would only chase the noise along them) and the others fitted; if one becomes identifiable at the estimate,
+all are fitted again from there.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config.observations import Observations
+from ..config.scenario import Scenario
+from ..errors import InputError
+from .forward import PARAMETERS, FePredictor, stacked, with_parameters
+from .noise import NoiseModel
+from .prefit import nearest_angle, prefit
+from .reasons import identifiability
+
+FIT_CHOICES = PARAMETERS
+DEFAULT_FIT = ("mu_x", "mu_y", "angle_deg")
+MAX_ITERATIONS = 15
+STEP_TOL = 1e-5
+"""Stop when the scaled step is below this (units: mu 0.1, angle 1 deg, young itself)."""
+FD_STEP = {"mu_x": 1e-5, "mu_y": 1e-5, "angle_deg": 1e-3, "young": 1e-6}
+"""Forward-difference steps (absolute; young relative), well above the solver's noise."""
+SINGULAR_RTOL = 1e-9
+"""Singular values of the scaled Jacobian below this fraction of the largest are null directions."""
+MU_FLOOR = 1e-4
+
+
+@dataclass(frozen=True)
+class Identification:
+    """An identification's result (SI units; angles in degrees).
+
+    ``sigma`` is ``inf`` for a parameter in a null direction of the Jacobian;
+    ``correlation`` has ``nan`` there.  ``chi2`` = ``||r||^2`` of the whitened residual.
+    """
+
+    names: tuple[str, ...]
+    initial: np.ndarray
+    start: np.ndarray
+    estimate: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+    identifiable: tuple[bool, ...]
+    reasons: dict
+    chi2_initial: float
+    chi2: float
+    n_values: int
+    residual_rms: dict
+    iterations: int
+    converged: bool
+    fe_rollouts: int
+    jacobian: np.ndarray = field(repr=False)
+    wall_time: float = 0.0
+    prefit_used: bool = False
+
+    def value(self, name: str) -> float:
+        return float(self.estimate[self.names.index(name)])
+
+    def scenario(self, scenario: Scenario) -> Scenario:
+        """``scenario`` with the estimates."""
+        return with_parameters(scenario, self.names, self.estimate)
+
+
+def scales(names, theta) -> np.ndarray:
+    """Parameter scales of the LM step and the identifiability tests."""
+    table = {"mu_x": 0.1, "mu_y": 0.1, "angle_deg": 1.0}
+    return np.array([table.get(k, abs(t)) for k, t in zip(names, theta)])
+
+
+def _residual(predict, y, sigma, theta) -> np.ndarray:
+    return (predict(theta) - y) / sigma
+
+
+def _jacobian(predict, y, sigma, names, theta, r0) -> np.ndarray:
+    J = np.empty((r0.size, len(names)))
+    for j, k in enumerate(names):
+        h = FD_STEP[k] * (abs(theta[j]) if k == "young" else 1.0)
+        t = theta.copy()
+        t[j] += h
+        J[:, j] = (_residual(predict, y, sigma, t) - r0) / h
+    return J
+
+
+def _clip(names, theta) -> np.ndarray:
+    t = theta.copy()
+    for j, k in enumerate(names):
+        if k in ("mu_x", "mu_y"):
+            t[j] = max(t[j], MU_FLOOR)
+        elif k == "young":
+            t[j] = max(t[j], 1e-3 * abs(theta[j]))
+    return t
+
+
+def _lm_step(J, r, D, lam) -> np.ndarray:
+    Js = J * D
+    A = Js.T @ Js
+    g = Js.T @ r
+    damping = lam * np.diag(np.maximum(np.diag(A), 1e-12 * max(np.trace(A), 1e-300)))
+    return -D * np.linalg.solve(A + damping, g)
+
+
+def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None):
+    """Minimise ``||(predict(theta) - y) / sigma||^2`` over the parameters ``free`` (a
+    boolean mask; the others stay fixed); ``J`` the Jacobian at ``theta`` if known.
+    Returns ``(theta, r, J, iterations, converged)`` with the full Jacobian at the end."""
+    r = _residual(predict, y, sigma, theta)
+    lam, converged, it = 1e-3, False, 0
+    sub = tuple(k for k, f in zip(names, free) if f)
+
+    def full(t_free):
+        t = theta_fixed.copy()
+        t[free] = t_free
+        return t
+
+    theta_fixed = theta.copy()
+    for it in range(1, MAX_ITERATIONS + 1):
+        Jf = J[:, free] if J is not None else _jacobian(lambda t: predict(full(t)), y, sigma, sub, theta[free], r)
+        J = None
+        D = scales(sub, theta[free])
+        for _ in range(8):
+            trial = _clip(names, full(theta[free] + _lm_step(Jf, r, D, lam)))
+            r_trial = _residual(predict, y, sigma, trial)
+            if r_trial @ r_trial <= r @ r:
+                break
+            lam *= 4.0
+        else:
+            converged = True  # no descent along the damped steps: a minimum to the FD accuracy
+            break
+        small = np.max(np.abs((trial - theta)[free] / D)) < STEP_TOL
+        theta, r, lam = trial, r_trial, max(lam / 3.0, 1e-7)
+        if log is not None:
+            log(f"  LM iteration {it}: chi2 {r @ r:.6g}, " + ", ".join(f"{k} = {v:.6g}" for k, v in zip(names, theta)))
+        if small:
+            converged = True
+            break
+    J = _jacobian(predict, y, sigma, names, theta, r)
+    return theta, r, J, it, converged
+
+
+def covariance(J: np.ndarray, D: np.ndarray):
+    """Gauss-Newton covariance ``(J^T J)^-1`` (scaled SVD) and which parameters lie in
+    null directions (their variance is infinite)."""
+    U, s, Vt = np.linalg.svd(J * D, full_matrices=False)
+    null = s <= SINGULAR_RTOL * s.max() if s.size and s.max() > 0 else np.ones(len(s), bool)
+    inv = np.where(null, 0.0, 1.0 / np.where(null, 1.0, s) ** 2)
+    cov_s = (Vt.T * inv) @ Vt
+    undetermined = (np.abs(Vt[null]) > 1e-6).any(axis=0) if null.any() else np.zeros(J.shape[1], bool)
+    return cov_s * np.outer(D, D), undetermined
+
+
+def _correlation(cov, undetermined) -> np.ndarray:
+    d = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(d, d)
+    corr[undetermined, :] = np.nan
+    corr[:, undetermined] = np.nan
+    return corr
+
+
+def _rms(obs: Observations, r: np.ndarray) -> dict:
+    K = len(obs)
+    return {k: float(np.sqrt(np.mean(r[i * K:(i + 1) * K] ** 2))) for i, k in enumerate(obs.columns)}
+
+
+def identify(scenario: Scenario, obs: Observations, noise: NoiseModel | None = None, fit=DEFAULT_FIT,
+             log=None) -> Identification:
+    """Estimate the parameters ``fit`` from ``obs`` (see the module docstring).
+
+    Raises
+    ------
+    InputError
+        No observed column, an unknown parameter, or fewer values than parameters.
+    IdentificationError
+        An FE rollout failed.
+    """
+    t0 = time.perf_counter()
+    noise = noise or NoiseModel()
+    names = tuple(fit)
+    for k in names:
+        if k not in FIT_CHOICES:
+            raise InputError(f"--fit {k}: unknown parameter (choose from {', '.join(FIT_CHOICES)})")
+    if not obs.columns:
+        raise InputError("observations: no observed column (lower_x, ..., force_z) to fit")
+    y, sigma = stacked(obs), noise.sigma(obs, scenario.size)
+    if y.size < len(names):
+        raise InputError(f"observations: {y.size} values cannot determine {len(names)} parameters")
+    predict = FePredictor(scenario, obs, names)
+    initial = np.array([getattr(scenario, k) for k in names], float)
+    start, used = initial.copy(), False
+    if {"mu_x", "mu_y", "angle_deg"} <= set(names):
+        guess = prefit(obs, [getattr(scenario, k) for k in ("mu_x", "mu_y", "angle_deg")], noise.pose_noise)
+        if guess is not None:
+            for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess):
+                start[names.index(k)] = v
+            used = True
+    chi2_initial = float(np.sum(_residual(predict, y, sigma, initial) ** 2))
+    r0 = _residual(predict, y, sigma, start)
+    J0 = _jacobian(predict, y, sigma, names, start, r0)
+    free = np.array(_flags(names, start, J0, obs, noise))
+    if not free.any():
+        free[:] = True
+    if not free.all():  # kept at the scenario's value: the prefit's value along them is arbitrary
+        start[~free] = initial[~free]
+        J0 = None
+        if log is not None:
+            log("  not identifiable at the start, kept at the scenario's value: "
+                + ", ".join(k for k, f in zip(names, free) if not f))
+    theta, r, J, iterations, converged = levenberg_marquardt(predict, y, sigma, names, start, free, log, J0)
+    flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
+    if not free.all() and any(f and not fr for f, fr in zip(flags, free)):
+        free[:] = True
+        theta, r, J, more, converged = levenberg_marquardt(predict, y, sigma, names, theta, free, log, J)
+        iterations += more
+    theta = _normalise_angle(names, theta, scenario.angle_deg)
+    flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
+    return Identification(
+        names=names, initial=initial, start=start, estimate=theta, sigma=sd,
+        correlation=_correlation(cov, undetermined), identifiable=flags, reasons=reasons,
+        chi2_initial=chi2_initial, chi2=float(r @ r), n_values=int(y.size), residual_rms=_rms(obs, r),
+        iterations=iterations, converged=converged, fe_rollouts=predict.count, jacobian=J,
+        wall_time=time.perf_counter() - t0, prefit_used=used,
+    )
+
+
+def _assess(names, theta, J, obs, noise):
+    """Covariance, standard deviations and identifiability at ``theta``."""
+    cov, undetermined = covariance(J, scales(names, theta))
+    sd = np.where(undetermined, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    flags, reasons = identifiability(names, theta, sd, obs, noise.pose_noise)
+    return flags, reasons, cov, sd, undetermined
+
+
+def _flags(names, theta, J, obs, noise) -> tuple[bool, ...]:
+    return _assess(names, theta, J, obs, noise)[0]
+
+
+def _normalise_angle(names, theta, reference_deg: float) -> np.ndarray:
+    """The orthotropy axis is a line: its angle modulo 180 deg, within 90 deg of the scenario's."""
+    t = theta.copy()
+    if "angle_deg" in names:
+        j = names.index("angle_deg")
+        t[j] = nearest_angle(t[j], reference_deg)
+    return t

@@ -1,0 +1,71 @@
+"""The noise model of observations: independent Gaussian errors with one standard
+deviation per observed value.
+
+    pose:   sigma = pose_noise (m) on lower_x, lower_y;
+            sigma = yaw_noise (deg) on lower_yaw_deg, by default the angle that moves a
+            corner of the lower face by pose_noise: degrees(pose_noise / (min(lx, ly) / 2));
+    force:  sigma_i = sqrt(force_noise^2 + (force_noise_rel * |f_i|)^2) (N) on force_x, _y, _z.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config.observations import FORCE_COLUMNS, Observations
+from ..config.validate import number
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Standard deviations of the observation errors (SI units; yaw in degrees).
+
+    ``yaw_noise_deg`` None: derived from ``pose_noise`` and the block (module docstring).
+    """
+
+    pose_noise: float = 1e-6
+    force_noise: float = 1.0
+    force_noise_rel: float = 0.01
+    yaw_noise_deg: float | None = None
+
+    def __post_init__(self):
+        number("pose_noise", self.pose_noise, positive=True)
+        number("force_noise", self.force_noise, nonneg=True)
+        number("force_noise_rel", self.force_noise_rel, nonneg=True)
+        if self.yaw_noise_deg is not None:
+            number("yaw_noise_deg", self.yaw_noise_deg, positive=True)
+
+    def yaw_sigma_deg(self, size) -> float:
+        if self.yaw_noise_deg is not None:
+            return self.yaw_noise_deg
+        return math.degrees(self.pose_noise / (0.5 * min(size[0], size[1])))
+
+    def sigma(self, obs: Observations, size) -> np.ndarray:
+        """Standard deviations stacked like :func:`~pushplan.identify.forward.stacked`.
+
+        Raises
+        ------
+        InputError
+            A force value with zero standard deviation (both force noises 0).
+        """
+        parts = []
+        for k in obs.columns:
+            v = obs.values[k]
+            if k in FORCE_COLUMNS:
+                s = np.hypot(self.force_noise, self.force_noise_rel * np.abs(v))
+                if np.any(s <= 0):
+                    raise InputError(f"force_noise = {self.force_noise} gives a zero standard deviation "
+                                     f"on a zero {k}: give force_noise > 0")
+            elif k == "lower_yaw_deg":
+                s = np.full(v.shape, self.yaw_sigma_deg(size))
+            else:
+                s = np.full(v.shape, self.pose_noise)
+            parts.append(s)
+        return np.concatenate(parts)
+
+    def to_dict(self, size) -> dict:
+        return {"pose_noise": self.pose_noise, "yaw_noise_deg": self.yaw_sigma_deg(size),
+                "force_noise": self.force_noise, "force_noise_rel": self.force_noise_rel}

@@ -1,0 +1,108 @@
+"""Closed loop (issue 20): re-planning from observations (``pushplan plan --from``) and
+the loop on a truth model whose friction is 30 % off the model's
+(``pushplan closed-loop``).  Coarse meshes (4 x 4 x 2) keep it to seconds."""
+
+import json
+import math
+
+import pytest
+
+from pushplan.cli import EXIT_BAD_INPUT, main
+
+MODEL = """
+name = "cl_model"
+[block]
+size = [0.020, 0.020, 0.010]
+elements = [4, 4, 2]
+quadrature = 2
+[material]
+young = 210.0e9
+poisson = 0.3
+[friction]
+mu_x = {mu_x}
+mu_y = {mu_y}
+angle_deg = 25.0
+[[load]]
+dz = -0.1e-3
+[solver]
+local_method = "newton"
+"""
+PLAN = """
+[plan]
+x = 0.6e-3
+y = 0.3e-3
+steps = 4
+max_step = 0.25e-3
+tolerance = 0.3e-6
+planning_elements = [4, 4, 2]
+planning_quadrature = 2
+"""
+TARGET = (0.6e-3, 0.3e-3)
+TOLERANCE = 0.3e-6
+
+
+def write(tmp_path, name, mu_x, mu_y, plan=True):
+    path = tmp_path / name
+    path.write_text(MODEL.format(mu_x=mu_x, mu_y=mu_y) + (PLAN if plan else ""))
+    return path
+
+
+def test_plan_from_observations_reaches_the_target_from_the_measured_state(tmp_path):
+    model = write(tmp_path, "model.toml", 0.3, 0.15)
+    assert main(["plan", str(model), "--out", str(tmp_path / "p0"), "--quiet", "--no-recording"]) == 0
+    first = json.loads((tmp_path / "p0" / "plan.json").read_text())
+    # execute the press and two planned pushes, observe
+    executed = {"commands": first["commands"][:3]}
+    (tmp_path / "executed.json").write_text(json.dumps(executed))
+    assert main(["simulate", str(model), "--commands", str(tmp_path / "executed.json"), "--out",
+                 str(tmp_path / "s"), "--quiet", "--no-recording", "--observations", str(tmp_path / "obs.csv")]) == 0
+    assert main(["plan", str(model), "--from", str(tmp_path / "obs.csv"), "--out", str(tmp_path / "p1"),
+                 "--quiet", "--no-recording"]) == 0
+    doc = json.loads((tmp_path / "p1" / "plan.json").read_text())
+    assert doc["from"]["executed_pushes"] == 2 and doc["plan"]["steps"] == 2
+    assert len(doc["commands"]) == 5 and doc["commands"][:3] == first["commands"][:3]
+    # the re-planned sequence, run from rest, ends at the absolute target
+    assert main(["simulate", str(model), "--commands", str(tmp_path / "p1" / "plan.json"), "--out",
+                 str(tmp_path / "s2"), "--quiet", "--no-recording"]) == 0
+    last = json.loads((tmp_path / "s2" / "summary.json").read_text())["steps"][-1]["lower_centroid"]
+    assert math.hypot(last[0] - TARGET[0], last[1] - TARGET[1]) <= TOLERANCE
+
+
+def test_plan_from_refuses_observations_without_the_pose(tmp_path, capsys):
+    model = write(tmp_path, "model.toml", 0.3, 0.15)
+    (tmp_path / "obs.csv").write_text("dx,dy,dz,dtheta_deg,force_x\n0,0,-0.0001,0,0\n1e-4,0,0,0,-5\n")
+    code = main(["plan", str(model), "--from", str(tmp_path / "obs.csv"), "--out", str(tmp_path / "p"), "--quiet"])
+    assert code == EXIT_BAD_INPUT
+    assert "missing column lower_x" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
+
+
+@pytest.mark.parametrize("identify", [False, True])
+def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identify):
+    model = write(tmp_path, "model.toml", 0.3, 0.15)
+    truth = write(tmp_path, "truth.toml", 0.39, 0.195, plan=False)  # friction 30 % above the model's
+    code = main(["closed-loop", str(model), "--truth", str(truth), "--out", str(tmp_path / "cl"), "--quiet",
+                 *(["--identify"] if identify else []), *([] if identify else ["--no-recording"])])
+    assert code == 0
+    doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+    closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
+    assert closed["within_tolerance"] and closed["position"] <= TOLERANCE
+    assert open_["position"] >= 10 * closed["position"]
+    assert len(doc["iterations"]) == 4
+    # each plan behind a push ends at the target (on the model it was planned with)
+    for it in doc["iterations"]:
+        end = it["planned_path"][-1]
+        assert math.hypot(end[0] - TARGET[0], end[1] - TARGET[1]) <= TOLERANCE
+        assert len(it["planned_path"]) == 4 - it["step"] + 2
+    # the loop ends where its last observation says
+    x, y, _ = doc["iterations"][-1]["observed_pose"]
+    assert math.hypot(x - TARGET[0], y - TARGET[1]) == pytest.approx(closed["position"], rel=1e-12)
+    assert (tmp_path / "cl" / "recording.rrd").exists() == identify
+    est = doc["final_estimates"]
+    if not identify:
+        assert est is None and doc["iterations"][-1]["planned_with"]["mu_x"] == 0.3
+        return
+    # the plan pushes near t_x: mu_x is identified, mu_y not (kept at the model's value, flagged)
+    assert not est["mu_y"]["identifiable"]
+    assert est["mu_x"]["identifiable"] and abs(est["mu_x"]["estimate"] - 0.39) <= 0.03 * 0.39
+    assert doc["iterations"][-1]["planned_with"]["mu_x"] == pytest.approx(0.39, rel=0.03)

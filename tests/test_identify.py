@@ -1,0 +1,210 @@
+"""Identifying anisotropic friction from observed pushes (issue 20).
+
+The truth is a scenario with friction the test picks (anisotropic, axes at 25 deg);
+its observations come from ``pushplan simulate --observations``; the test adds
+Gaussian noise (1 um on the pose, 1 % on the force) and runs ``pushplan identify``
+from a wrong isotropic guess.  Meshes are coarse (4 x 4 x 2): the identification fits
+the model it is given, so the mesh only sets the cost."""
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from pushplan.cli import EXIT_BAD_INPUT, main
+from pushplan.config.observations import Observations, observations_to_csv, read_observations
+
+TRUTH = {"mu_x": 0.32, "mu_y": 0.18, "angle_deg": 25.0}
+
+SCENARIO = """
+name = "{name}"
+[block]
+size = [0.02, 0.02, 0.01]
+elements = [4, 4, 2]
+quadrature = 2
+[material]
+young = 210e9
+poisson = 0.3
+[friction]
+mu_x = {mu_x}
+mu_y = {mu_y}
+angle_deg = {angle_deg}
+[[load]]
+dz = -1e-4
+{pushes}
+[solver]
+local_method = "newton"
+"""
+
+
+def push(direction_deg, repeat=1, distance=1e-4):
+    return f"[[load]]\ndistance = {distance}\ndirection_deg = {direction_deg}\nrepeat = {repeat}\n"
+
+
+def write_scenario(path, name, friction, pushes=""):
+    path.write_text(SCENARIO.format(name=name, pushes=pushes, **friction))
+    return path
+
+
+def noisy(obs: Observations, seed: int) -> Observations:
+    """1 um Gaussian noise on the pose, 1 % on each force component."""
+    rng = np.random.default_rng(seed)
+    values = {}
+    for k, v in obs.values.items():
+        if k in ("lower_x", "lower_y"):
+            values[k] = v + rng.normal(0.0, 1e-6, v.shape)
+        elif k.startswith("force"):
+            values[k] = v + rng.normal(0.0, 0.01 * np.abs(v))
+        # lower_yaw_deg left out: a camera's yaw of a 20 mm face is poor
+    return Observations(obs.commands, values)
+
+
+def observe(tmp_path, pushes, seed):
+    """Observations of the truth under ``pushes`` (through the CLI), with noise, as a CSV file."""
+    truth = write_scenario(tmp_path / "truth.toml", "truth", TRUTH, pushes)
+    clean = tmp_path / "clean.csv"
+    assert main(["simulate", str(truth), "--out", str(tmp_path / "sim"), "--quiet", "--no-recording",
+                 "--observations", str(clean)]) == 0
+    path = tmp_path / "observed.csv"
+    path.write_text(observations_to_csv(noisy(read_observations(clean), seed)))
+    return path
+
+
+def run_identify(tmp_path, observations, *extra):
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    out = tmp_path / "id"
+    code = main(["identify", str(guess), "--observations", str(observations), "--out", str(out), "--quiet",
+                 "--pose-noise", "1e-6", "--force-noise", "1", "--force-noise-rel", "0.01", *extra])
+    return code, out
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_synthetic_truth_is_recovered_within_its_sigmas(tmp_path, seed):
+    # 5 pushes in three directions, none along an axis
+    obs = observe(tmp_path, push(10.0, 2) + push(100.0, 2) + push(200.0), seed)
+    code, out = run_identify(tmp_path, obs)
+    assert code == 0
+    doc = json.loads((out / "identified.json").read_text())
+    p = doc["parameters"]
+    for k in ("mu_x", "mu_y"):
+        assert abs(p[k]["estimate"] - TRUTH[k]) <= 0.03 * TRUTH[k], (k, p[k])
+    assert abs(p["angle_deg"]["estimate"] - TRUTH["angle_deg"]) <= 1.0, p["angle_deg"]
+    for k in TRUTH:
+        assert p[k]["identifiable"] and p[k]["reason"] is None
+        assert abs(p[k]["estimate"] - TRUTH[k]) <= 3 * p[k]["sigma"], (k, p[k])
+        assert p[k]["initial"] != TRUTH[k]
+    corr = np.array(doc["correlation"])
+    assert np.allclose(np.diag(corr), 1.0) and np.allclose(corr, corr.T) and np.all(np.abs(corr) <= 1 + 1e-12)
+    assert doc["solver"]["fe_rollouts"] > 0 and doc["residual"]["chi2"] < doc["residual"]["chi2_initial"]
+    # the noise is what the fit was told: the whitened residual is of order one
+    assert 0.3 < doc["residual"]["reduced_chi2"] < 3.0
+    identified = tomllib.loads((out / "identified.toml").read_text())
+    assert identified["friction"]["mu_x"] == p["mu_x"]["estimate"]
+    assert identified["block"] == {"size": [0.02, 0.02, 0.01], "elements": [4, 4, 2], "quadrature": 2}
+
+
+def test_pushes_along_one_axis_flag_the_other_coefficient(tmp_path):
+    obs = observe(tmp_path, push(TRUTH["angle_deg"], 4), seed=3)
+    code, out = run_identify(tmp_path, obs)
+    assert code == 0
+    p = json.loads((out / "identified.json").read_text())["parameters"]
+    assert not p["mu_y"]["identifiable"]
+    assert "along the orthotropy axis t_x" in p["mu_y"]["reason"] and "mu_x only" in p["mu_y"]["reason"]
+    assert p["mu_x"]["identifiable"] and abs(p["mu_x"]["estimate"] - TRUTH["mu_x"]) <= 0.03 * TRUTH["mu_x"]
+
+
+def worst_normalised_sigma(doc) -> float:
+    """Largest standard deviation in units of the identifiability limit (10 % of mu, 5 deg)."""
+    p = doc["parameters"]
+    return max(p["mu_x"]["sigma"] / (0.1 * TRUTH["mu_x"]), p["mu_y"]["sigma"] / (0.1 * TRUTH["mu_y"]),
+               p["angle_deg"]["sigma"] / 5.0)
+
+
+def test_suggested_pushes_identify_at_least_as_well_as_one_direction(tmp_path):
+    one = tmp_path / "one"
+    one.mkdir()
+    code, out = run_identify(one, observe(one, push(0.0, 4), seed=4), "--suggest", "4")
+    assert code == 0
+    doc_one = json.loads((out / "identified.json").read_text())
+    suggested = doc_one["suggested"]
+    assert len(suggested["directions_deg"]) == 4
+    # execute the suggestion on the truth
+    two = tmp_path / "two"
+    two.mkdir()
+    pushes = "".join(push(d) for d in suggested["directions_deg"])
+    code, out = run_identify(two, observe(two, pushes, seed=4))
+    assert code == 0
+    doc_two = json.loads((out / "identified.json").read_text())
+    p1, p2 = doc_one["parameters"], doc_two["parameters"]
+    assert all(p1[k]["identifiable"] for k in TRUTH)  # world x is 25 deg off the axes: identifiable, but weakly
+    assert all(p2[k]["identifiable"] for k in TRUTH)
+    assert worst_normalised_sigma(doc_two) <= worst_normalised_sigma(doc_one)
+    for k in TRUTH:
+        assert p2[k]["sigma"] <= p1[k]["sigma"], k
+    err = [max(abs(p[k]["estimate"] - TRUTH[k]) / (0.1 * TRUTH[k]) for k in ("mu_x", "mu_y")) for p in (p1, p2)]
+    assert err[1] <= max(err[0], 0.3)  # as close as one direction (or within 3 % of each mu)
+    # the FE-predicted sigmas of the suggestion are those its identification reports
+    for k in TRUTH:
+        assert suggested["predicted_sigma"][k] == pytest.approx(p2[k]["sigma"], rel=0.3)
+
+
+BAD = {
+    "missing column": "dx,dy,dz,lower_x\n0,0,-1e-4,0\n",
+    "nan": "dx,dy,dz,dtheta_deg,lower_x\n0,0,-1e-4,0,nan\n",
+    "wrong length": "dx,dy,dz,dtheta_deg,lower_x\n0,0,-1e-4,0,0\n1e-4,0,0,0\n",
+    "unknown column": "dx,dy,dz,dtheta_deg,lower_q\n0,0,-1e-4,0,0\n",
+    "empty": "",
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_observation_file_exits_2_and_writes_nothing(tmp_path, capsys, case):
+    path = tmp_path / "bad.csv"
+    path.write_text(BAD[case])
+    code, out = run_identify(tmp_path, path)
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT
+    assert err.startswith("pushplan: error: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert str(path) in err
+    assert not out.exists()
+
+
+def test_fit_young_recovers_the_stiffness_with_the_friction(tmp_path):
+    # noise-free observations of the truth; the guess is 30 % soft and isotropic
+    obs = observe_clean(tmp_path, push(10.0, 2) + push(100.0, 2))
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    guess.write_text(guess.read_text().replace("young = 210e9", "young = 150e9"))
+    out = tmp_path / "id"
+    assert main(["identify", str(guess), "--observations", str(obs), "--out", str(out), "--quiet",
+                 "--fit", "young"]) == 0
+    p = json.loads((out / "identified.json").read_text())["parameters"]
+    assert p["young"]["initial"] == 150e9 and p["young"]["identifiable"]
+    assert p["young"]["estimate"] == pytest.approx(210e9, rel=1e-3)
+    assert p["mu_x"]["estimate"] == pytest.approx(TRUTH["mu_x"], rel=1e-3)
+    assert tomllib.loads((out / "identified.toml").read_text())["material"]["young"] == p["young"]["estimate"]
+
+
+def observe_clean(tmp_path, pushes):
+    truth = write_scenario(tmp_path / "truth.toml", "truth", TRUTH, pushes)
+    path = tmp_path / "clean.json"
+    assert main(["simulate", str(truth), "--out", str(tmp_path / "sim"), "--quiet", "--no-recording",
+                 "--observations", str(path)]) == 0
+    return path
+
+
+def test_toml_writer_round_trips_scenarios():
+    from pathlib import Path
+
+    from pushplan.config import parse_scenario
+    from pushplan.outputs.toml import toml_text
+
+    for path in sorted((Path(__file__).resolve().parents[1] / "pushplan" / "scenarios").glob("*.toml")):
+        data = tomllib.loads(path.read_text())
+        if "block" not in data:
+            continue  # a sweep file
+        scenario = parse_scenario(data, "s")
+        text = toml_text(scenario.to_dict(), "a header\nof two lines")
+        assert text.startswith("# a header\n# of two lines\n")
+        assert tomllib.loads(text) == scenario.to_dict()
+        assert parse_scenario(tomllib.loads(text)) == scenario
