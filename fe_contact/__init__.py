@@ -31,6 +31,9 @@ from .model import (
     initial_state,
 )
 from .step import run, step
+from ._threads import limit_blas_threads
+
+limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact._threads)
 
 __all__ = [
     "BlockMesh",
