@@ -12,8 +12,12 @@ thread (:func:`limit_blas_threads`) unless the user set one of
 :data:`USER_VARIABLES`, which then rule.
 
 ``FE_CONTACT_DENSE_THREADS`` sets the thread count of those kernels; unset, it
-is the number of CPUs this process may use.  Processes that already share the
-cores (``pushplan sweep`` workers, parallel test workers) set it to 1.
+is the number of CPUs this process may use that other work leaves idle
+(:func:`idle_cpus`): on a loaded machine the second thread waits for a core
+and costs more than it saves (paper case 3 at load average 5 on 2 cores:
+1.66 / 2.17 s with one thread in the dense kernels, 2.57 / 3.55 s with two,
+alternating runs; the tangent 4-5x slower).  Processes that already share
+the cores (``pushplan sweep`` workers, parallel test workers) set it to 1.
 """
 
 from __future__ import annotations
@@ -56,11 +60,28 @@ def limit_blas_threads() -> bool:
     return True
 
 
+def idle_cpus() -> int:
+    """The CPUs this process may use less the 1-minute load average beyond this
+    process's own 1 (rounded), at least 1; all of them where the load average
+    is not available.
+
+    The load average lags by about a minute and counts this process's own
+    threads, so a long stretch of two-threaded kernels can lower it to one
+    thread: at most the 1.8x of the kernels, where a busy machine costs 4x.
+    """
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return cpus
+    return max(1, min(cpus, int(cpus - max(load - 1.0, 0.0) + 0.5)))
+
+
 def dense_threads() -> int:
-    """Threads for the large dense kernels (``FE_CONTACT_DENSE_THREADS`` or the usable CPUs)."""
+    """Threads for the large dense kernels (``FE_CONTACT_DENSE_THREADS`` or :func:`idle_cpus`)."""
     value = os.environ.get(ENV)
     if value is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        return idle_cpus()
     try:
         n = int(value)
     except ValueError:

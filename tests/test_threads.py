@@ -70,3 +70,12 @@ def test_a_thread_variable_the_user_set_rules():
     env = _clean_environment()
     env["OPENBLAS_NUM_THREADS"] = "2"
     assert _blas_threads_in_child(env) == {2}
+
+
+@pytest.mark.parametrize("load, expected", [(0.0, 2), (1.0, 2), (1.4, 2), (1.6, 1), (3.0, 1), (40.0, 1)])
+def test_unset_dense_threads_are_the_cpus_other_work_leaves_idle(monkeypatch, load, expected):
+    """On 2 usable CPUs: this process's own load of 1 leaves both; more load leaves one."""
+    monkeypatch.delenv(_threads.ENV, raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    assert _threads.dense_threads() == expected
