@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--uzawa-max-iter", type=int, default=None,
                         help="Uzawa sweep limit (default: the solver's 20000)")
     args = parser.parse_args(argv)
-    limits = {"uzawa": args.uzawa_max_iter, "newton": None}
+    limits = {m: (None if m == "newton" else args.uzawa_max_iter) for m in METHODS}
 
     rows = []
     for name, file in FCLIB_FILES.items():
@@ -117,11 +117,11 @@ def main(argv=None) -> dict:
     print(f"FE problem: paper case 3, {facts['elements']} hex8, quadrature {facts['quadrature']}, "
           f"{facts['contacts']} contacts, first of {facts['step2_local_calls']} local solves of step 2 "
           f"(built in {facts['build_time_s']:.1f} s)")
-    head = f"{'problem':<16}{'nc':>5}  {'method':<7}{'start':<6}{'iter':>7}{'time s':>9}{'residual':>11}  conv"
+    head = f"{'problem':<16}{'nc':>5}  {'method':<13}{'start':<6}{'iter':>7}{'time s':>9}{'residual':>11}  conv"
     print(head)
     print("-" * len(head))
     for r in rows:
-        print(f"{r['problem']:<16}{r['contacts']:>5}  {r['method']:<7}{r['start']:<6}{r['iterations']:>7}"
+        print(f"{r['problem']:<16}{r['contacts']:>5}  {r['method']:<13}{r['start']:<6}{r['iterations']:>7}"
               f"{r['time_s']:>9.3f}{r['residual']:>11.2e}  {r['converged']}")
     payload = {"tol": args.tol, "uzawa_max_iter": args.uzawa_max_iter, "fe_problem": facts, "rows": rows}
     path = write_results("local_solvers", payload)

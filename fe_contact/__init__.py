@@ -38,6 +38,9 @@ from .model import (
 )
 from .release import Release, ReleaseSchedule, run_release
 from .step import run, step
+from ._threads import limit_blas_threads
+
+limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact._threads)
 
 __all__ = [
     "BlockMesh",

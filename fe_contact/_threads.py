@@ -1,16 +1,23 @@
-"""BLAS threads for the large dense kernels of a step.
+"""BLAS threads: one in the package's processes, more only in the large dense kernels.
 
 The multifrontal factorisation of a large tangent (with the flexibility
 matrix) and the local Newton LU are dense BLAS-3 work that two threads run
 about 1.8x faster (measured: LU of the paper case's 1323 x 1323 Newton
 matrix, 62 -> 33 ms); everything else in a step is
 small dense or sparse work that threads slow down, so BLAS is best left at one
-thread (the Makefile exports ``OPENBLAS_NUM_THREADS=1``) and raised only around
-these kernels.
+thread and raised only around these kernels.  On a machine whose cores are
+busy, BLAS threads that spin waiting for a core made whole runs 4-7 times
+slower (issue 21).  Importing :mod:`fe_contact` therefore limits BLAS to one
+thread (:func:`limit_blas_threads`) unless the user set one of
+:data:`USER_VARIABLES`, which then rule.
 
 ``FE_CONTACT_DENSE_THREADS`` sets the thread count of those kernels; unset, it
-is the number of CPUs this process may use.  Processes that already share the
-cores (``pushplan sweep`` workers, parallel test workers) set it to 1.
+is the number of CPUs this process may use that other work leaves idle
+(:func:`idle_cpus`): on a loaded machine the second thread waits for a core
+and costs more than it saves (paper case 3 at load average 5 on 2 cores:
+1.66 / 2.17 s with one thread in the dense kernels, 2.57 / 3.55 s with two,
+alternating runs; the tangent 4-5x slower).  Processes that already share
+the cores (``pushplan sweep`` workers, parallel test workers) set it to 1.
 """
 
 from __future__ import annotations
@@ -24,14 +31,57 @@ ENV = "FE_CONTACT_DENSE_THREADS"
 MIN_SIZE = 1000
 """Matrix order from which a second thread pays (measured: 1.2x at 1000, 1.0x at 600)."""
 
+USER_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
+                  "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+"""Thread variables that OpenBLAS, MKL, BLIS or Accelerate read: if the user set
+any of them, the package leaves the BLAS thread count alone."""
+
 _controller: ThreadpoolController | None = None
 
 
+def _blas_controller() -> ThreadpoolController:
+    global _controller
+    if _controller is None:
+        _controller = ThreadpoolController()
+    return _controller
+
+
+def limit_blas_threads() -> bool:
+    """Limit every BLAS loaded in this process to one thread, unless one of
+    :data:`USER_VARIABLES` is set; True if it did.
+
+    Called when :mod:`fe_contact` is imported, after NumPy and SciPy (each
+    wheel brings its own OpenBLAS) are loaded.  The limit stays for the
+    process; :func:`dense_kernel` raises it inside the large dense kernels.
+    """
+    if any(v in os.environ for v in USER_VARIABLES):
+        return False
+    _blas_controller().limit(limits=1, user_api="blas")
+    return True
+
+
+def idle_cpus() -> int:
+    """The CPUs this process may use less the 1-minute load average beyond this
+    process's own 1 (rounded), at least 1; all of them where the load average
+    is not available.
+
+    The load average lags by about a minute and counts this process's own
+    threads, so a long stretch of two-threaded kernels can lower it to one
+    thread: at most the 1.8x of the kernels, where a busy machine costs 4x.
+    """
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return cpus
+    return max(1, min(cpus, int(cpus - max(load - 1.0, 0.0) + 0.5)))
+
+
 def dense_threads() -> int:
-    """Threads for the large dense kernels (``FE_CONTACT_DENSE_THREADS`` or the usable CPUs)."""
+    """Threads for the large dense kernels (``FE_CONTACT_DENSE_THREADS`` or :func:`idle_cpus`)."""
     value = os.environ.get(ENV)
     if value is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        return idle_cpus()
     try:
         n = int(value)
     except ValueError:
@@ -47,7 +97,4 @@ def dense_kernel(size: int):
     n = dense_threads()
     if size < MIN_SIZE or n <= 1:
         return nullcontext()
-    global _controller
-    if _controller is None:
-        _controller = ThreadpoolController()
-    return _controller.limit(limits=n, user_api="blas")
+    return _blas_controller().limit(limits=n, user_api="blas")

@@ -3,10 +3,11 @@ linear algebra of a semismooth Newton step on them (the ``"newton"`` method of
 :mod:`fe_contact.local_solver`).
 
 For scaled forces ``s`` (n, 3), ordered ``(n, t_x, t_y)``, with
-``u_s = D W D s + q_s`` and a per-contact ``rho > 0``:
+``u_s = D W D s + q_s`` and per contact a normal and a tangential
+``rho_n, rho_t > 0``:
 
-    F_n(s) = s_n - max(0, s_n - rho u_n),
-    F_t(s) = s_t - proj_{|z| <= mu max(0, s_n - rho u_n)}(z),   z = s_t - rho u_t,
+    F_n(s) = s_n - max(0, s_n - rho_n u_n),
+    F_t(s) = s_t - proj_{|z| <= mu max(0, s_n - rho_n u_n)}(z),   z = s_t - rho_t u_t,
 
 and ``F(s) = 0`` exactly when ``s`` solves the contact problem with an
 isotropic cone of coefficient ``mu`` (Alart and Curnier, CMAME 92:353-375,
@@ -32,10 +33,11 @@ def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
     (n, 3, 3) (:func:`newton_matrix` forms it, :func:`jacobian_product`
     applies it).
 
-    Isotropic cone with coefficients ``mu`` (1 or 0) on the scaled variables
+    Isotropic cone with coefficients ``mu`` (n,) on the scaled variables
     of the problem ``u_s = D W D s + q_s``, ``D = diag(d)`` (``D W D`` is never
     formed: at 1e4 contacts it is another 7 GB matrix).  ``fixed`` marks
-    scaled components pinned to 0 (axes with zero friction).  The product
+    scaled components pinned to 0 (axes with zero friction); ``rho`` (n, 2)
+    holds ``(rho_n, rho_t)`` per contact.  The product
     with ``W`` is BLAS; the per-contact rest is :func:`_ac_kernel`.
     """
     n = s.shape[0]
@@ -52,22 +54,22 @@ def _ac_kernel(s, u, mu, rho, fixed, P, Q):
     Jacobian blocks into ``P``, ``Q`` (zeroed, shape (n, 3, 3)) unless they
     have no rows.
 
-    Per contact, with ``p = s_n - rho u_n``, ``R = mu max(p, 0)``, ``z = s_t -
-    rho u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
+    Per contact, with ``p = s_n - rho_n u_n``, ``R = mu max(p, 0)``, ``z = s_t -
+    rho_t u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
 
-    * normal row, active (p > 0): ``rho W_n`` (P = 0, Q = rho e_n);
+    * normal row, active (p > 0): ``rho_n W_n`` (P = 0, Q = rho_n e_n);
       inactive: ``e_n`` (P = e_n, Q = 0);
-    * tangent rows, stick (|z| <= R, R > 0): ``rho W_t`` (P = 0, Q = rho [0 I]);
-      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho W_t)`` with
-      ``dR = mu (e_n - rho W_n)`` when active, else 0;
+    * tangent rows, stick (|z| <= R, R > 0): ``rho_t W_t`` (P = 0, Q = rho_t [0 I]);
+      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho_t W_t)`` with
+      ``dR = mu (e_n - rho_n W_n)`` when active, else 0;
     * components pinned to zero: ``F = s``, row ``e_i``.
     """
     n = s.shape[0]
     F = np.empty((n, 3))
     jac = P.shape[0] > 0
     for c in range(n):
-        r = rho[c]
-        p = s[c, 0] - r * u[c, 0]
+        rn, r = rho[c, 0], rho[c, 1]
+        p = s[c, 0] - rn * u[c, 0]
         active = p > 0.0
         R = mu[c] * p if active else 0.0
         z1 = s[c, 1] - r * u[c, 1]
@@ -75,14 +77,14 @@ def _ac_kernel(s, u, mu, rho, fixed, P, Q):
         zn = math.sqrt(z1 * z1 + z2 * z2)
         stick = zn <= R and R > 0.0
         h1, h2 = (z1 / zn, z2 / zn) if zn > 0.0 else (0.0, 0.0)
-        F[c, 0] = r * u[c, 0] if active else s[c, 0]
+        F[c, 0] = rn * u[c, 0] if active else s[c, 0]
         if stick:
             F[c, 1], F[c, 2] = r * u[c, 1], r * u[c, 2]
         else:
             F[c, 1], F[c, 2] = s[c, 1] - R * h1, s[c, 2] - R * h2
         if jac:
             if active:
-                Q[c, 0, 0] = r
+                Q[c, 0, 0] = rn
             else:
                 P[c, 0, 0] = 1.0
             if stick:
@@ -94,7 +96,7 @@ def _ac_kernel(s, u, mu, rho, fixed, P, Q):
                 h = (h1, h2)
                 for i in range(2):
                     P[c, 1 + i, 0] = -m_act * h[i]
-                    Q[c, 1 + i, 0] = m_act * r * h[i]
+                    Q[c, 1 + i, 0] = m_act * rn * h[i]
                     for j in range(2):
                         proj = (1.0 if i == j else 0.0) - h[i] * h[j]
                         P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj

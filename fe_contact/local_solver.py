@@ -12,14 +12,18 @@ the elliptic cone of :mod:`fe_contact.friction` and ``modified(u) = (u_n +
 Methods
 -------
 ``"uzawa"``
-    The paper's Uzawa / bi-potential fixed point, all contacts updated at once
-    with the per-contact ``rho = 1 / min(w_nn, w_txtx, w_tyty)`` of sect. 8,
-    safeguarded: all ``rho`` are halved whenever the residual grows or stalls.
+    The paper's Uzawa / bi-potential fixed point with its per-contact ``rho = 1
+    / min(w_nn, w_txtx, w_tyty)`` (sect. 8), contact by contact (Gauss-Seidel):
+    :mod:`fe_contact.uzawa`.
+``"uzawa_jacobi"``
+    The same with all contacts updated at once, safeguarded by halving ``rho``.
 ``"newton"``
-    Semismooth Newton on the Alart-Curnier equations of the equivalent isotropic
-    problem ``FC(D W D, D q, mu = 1)``, ``r = D s``, ``D = diag(1, mu_x, mu_y)``,
-    globalised by a non-monotone Armijo line search on ``|F|^2 / 2`` (the
-    equations and the linear algebra of a step: :mod:`fe_contact.alart_curnier`).
+    Semismooth Newton on the Alart-Curnier equations of the equivalent problem
+    with an isotropic cone per contact, ``r = D s``, ``D = diag(1, mu_x / mu,
+    mu_y / mu)``, ``mu = max(mu_x, mu_y)`` (``D = I`` for isotropic contacts),
+    with a normal and a tangential ``rho`` per contact, globalised by a
+    non-monotone Armijo line search on ``|F|^2 / 2`` (the equations and the
+    linear algebra of a step: :mod:`fe_contact.alart_curnier`).
 """
 
 from __future__ import annotations
@@ -33,18 +37,15 @@ import scipy.sparse as sp
 from .alart_curnier import (alart_curnier, factorise_newton_matrix, gmres, jacobian_product, lu_step, newton_matrix,
                             well_conditioned)
 from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
+from .uzawa import uzawa
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
 
-METHODS = ("uzawa", "newton")
+METHODS = ("uzawa", "newton", "uzawa_jacobi")
 
 _ARMIJO_SIGMA = 1e-4
 _MIN_STEP = 2.0**-30
 _NONMONOTONE_MEMORY = 5
-_GROWTH = 2.0  # residual growth that halves the Uzawa step
-_BLOWUP = 1e6  # |r| beyond this many force scales is divergence
-_STALL_CHECKS = 5  # checks (10 iterations each) ...
-_STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
 _KRYLOV_RTOL = 1e-2  # relative residual of the linearised equations in a Krylov step
 _KRYLOV_MAX_ITER = 20  # GMRES iterations before a new LU is cheaper (n^2 each against n^3)
 _KRYLOV_MIN_ORDER = 1000  # below, an LU costs less than the interpreter work of GMRES (planning mesh: 243)
@@ -202,11 +203,11 @@ def solve_local(
         Free displacement (velocity) of the contacts, ``u = W r + q``.
     mu_x, mu_y : float or array_like, shape (n,)
         Friction coefficients along the local axes (>= 0).
-    method : {"uzawa", "newton"}
+    method : {"uzawa", "newton", "uzawa_jacobi"}
     tol : float
         Target normalised natural-map residual.
     max_iter : int, optional
-        Iteration limit (default 20000 for Uzawa, 100 for Newton).
+        Iteration limit (default 20000 Uzawa sweeps, 100 Newton steps).
     r0 : array_like, shape (n, 3), optional
         Initial reactions (warm start); projected onto the cone first.
     assume_spd : bool
@@ -241,67 +242,22 @@ def solve_local(
         empty = np.zeros((0, 3))
         return LocalSolution(empty, empty, 0, 0.0, True, (), method)
     ra = project_elliptic_cone(ra, mx, my)
-    if method == "uzawa":
-        return _uzawa(Wd, qa, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter))
+    if method != "newton":
+        return _uzawa(Wd, qa, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter), method)
     return _newton(Wd, qa, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace)
 
 
-def _uzawa(W, q, mx, my, r, tol, max_iter) -> LocalSolution:
-    n = q.shape[0]
-    diag = np.diag(W).reshape(n, 3)
-    positive = np.where(diag > 0, diag, np.inf)
-    wmin = positive.min(axis=1)
-    # a contact with no flexibility at all does not move: any rho works
-    rho = np.where(np.isfinite(wmin), 1.0 / np.where(np.isfinite(wmin), wmin, 1.0), 1.0)[:, None]
-    # The paper's rho makes the simultaneous update a contraction only when W is
-    # close to block diagonal.  A flexibility matrix of a continuum is not (one
-    # nodal force moves its neighbours almost as much as itself), and the plain
-    # iteration then diverges or cycles.  Safeguard: when the residual grows, or
-    # falls by less than _STALL_RATIO over _STALL_CHECKS checks, restart from the
-    # best iterate with all rho halved (omega below).
-    omega = 1.0
-    history = []
-    check_every = 10
-    best_r, best_res = r, np.inf
-    segment: list[float] = []  # residuals since the last restart
-    # force scale of the problem: a solution is far below _BLOWUP times this
-    r_ref = max(np.linalg.norm(r), np.linalg.norm(rho * q), 1e-300)
-    it = 0
-    while it < max_iter:
-        u = (W @ r.ravel()).reshape(n, 3) + q
-        if it % check_every == 0:
-            residual = _natural_map(r, u, q, mx, my)
-            history.append(residual)
-            if residual <= tol:
-                break
-            if residual < best_res and np.linalg.norm(r) <= _BLOWUP * r_ref:
-                best_r, best_res = r, residual
-            segment.append(residual)
-            stalled = len(segment) > _STALL_CHECKS and residual > _STALL_RATIO * segment[-_STALL_CHECKS - 1]
-            # the normalised residual shrinks as |r| blows up, so size guards it too
-            blown_up = np.linalg.norm(r) > _BLOWUP * r_ref
-            if not np.isfinite(residual) or residual > _GROWTH * best_res or stalled or blown_up:
-                omega *= 0.5
-                r = best_r
-                u = (W @ r.ravel()).reshape(n, 3) + q
-                segment = []
-        r = _project(r - omega * rho * _modified(u, mx, my), mx, my)
-        it += 1
-    u = (W @ r.ravel()).reshape(n, 3) + q
-    residual = _natural_map(r, u, q, mx, my)
-    if residual > best_res:
-        r, residual = best_r, best_res
-        u = (W @ r.ravel()).reshape(n, 3) + q
-    history.append(residual)
-    return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), "uzawa")
+def _uzawa(W, q, mx, my, r, tol, max_iter, method) -> LocalSolution:
+    r, u, it, residual, history = uzawa(W, q, mx, my, r, tol, max_iter,
+                                        lambda r, u: _natural_map(r, u, q, mx, my), method == "uzawa")
+    return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), method)
 
 
 def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
     n = q.shape[0]
-    D, mu, fixed, w_ref = _isotropic_scaling(W, mx, my)
+    D, mu, fixed, rho, w_ref = _isotropic_scaling(W, mx, my)
     d = D.ravel()
     qs = q * D
-    rho = np.full(n, 1.0 / w_ref)
     # A singular W (rigid multibody problems, axes without friction) makes the
     # Newton matrix singular; proximal-point regularisation (solve
     # FC(W + eta I, q - eta s_k) and move s_k) keeps it invertible and has the
@@ -356,21 +312,49 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
 
 
 def _isotropic_scaling(W, mx, my):
-    """``D = diag(1, mu_x, mu_y)`` per contact (n, 3), the isotropic
-    coefficients ``mu`` (n,), the components pinned to zero (n, 3) and the
-    mean positive diagonal of ``D W D``.
+    """The isotropic problem of each contact and its Alart-Curnier parameters.
 
-    Frictionless contacts keep ``D = I`` with ``mu = 0``.
+    Per contact ``mu = max(mu_x, mu_y)`` and ``D = diag(1, mu_x / mu, mu_y /
+    mu)``: ``r = D s`` maps ``||s_t|| <= mu s_n`` onto ``K_mu``.  An isotropic
+    contact keeps ``D = I`` and its own ``mu``: scaling it to the unit cone
+    (``D = diag(1, mu, mu)``) would multiply its tangential flexibility by
+    ``mu^2`` against the normal one, a condition number of 1e6 at ``mu =
+    1000`` that neither Newton nor Siconos' NSN_AC survive well.  Frictionless
+    contacts keep ``D = I`` with ``mu = 0``.
+
+    ``rho = (rho_n, rho_t)`` per contact is the inverse of the normal
+    diagonal entry and of the largest eigenvalue of the tangential 2x2 block
+    of ``D W D`` (Siconos' "split spectral norm" choice), so that each
+    contact's equations are of unit scale in both directions.  A contact
+    without flexibility in a direction takes the mean positive diagonal.
+
+    Returns
+    -------
+    D : ndarray, shape (n, 3)
+    mu : ndarray, shape (n,)
+    fixed : ndarray of bool, shape (n, 3)
+        Scaled components pinned to zero (an axis with zero friction).
+    rho : ndarray, shape (n, 2)
+    w_ref : float
+        Mean positive diagonal entry of ``D W D`` (the scale of the regularisation).
     """
     n = mx.shape[0]
-    frictionless = (mx == 0) & (my == 0)
-    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx), np.where(frictionless, 1.0, my)])
-    mu = np.where(frictionless, 0.0, 1.0)
+    mu = np.maximum(mx, my)
+    frictionless = mu == 0
+    safe = np.where(frictionless, 1.0, mu)
+    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx / safe), np.where(frictionless, 1.0, my / safe)])
     fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
     d = D.ravel()
     diag = (np.diag(W) * d * d).reshape(n, 3)
     w_ref = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
-    return D, mu, fixed, w_ref
+    # largest eigenvalue of the symmetric tangential blocks [[a, b], [b, c]]
+    idx = 3 * np.arange(n)
+    b = W[idx + 1, idx + 2] * D[:, 1] * D[:, 2]
+    a, c = diag[:, 1], diag[:, 2]
+    w_t = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    w = np.column_stack([diag[:, 0], w_t])
+    rho = 1.0 / np.where(w > 0, w, w_ref)
+    return D, mu, fixed, rho, w_ref
 
 
 def _newton_direction(s, F, ac, lu, keep):

@@ -71,7 +71,9 @@ class SolverOptions:
     local_method : str
         Local contact solver, one of ``LOCAL_METHODS``.  ``"newton"`` (default)
         is the fastest robust one measured (``benchmarks/local_solvers.py``);
-        ``"uzawa"`` is the paper's algorithm.
+        ``"uzawa"`` is the paper's algorithm (node-by-node sweeps with its
+        ``rho``); ``"uzawa_jacobi"`` updates all nodes at once (safeguarded),
+        kept for comparison.
     local_tol : float
         Natural-map residual tolerance of the local solve (Siconos normalisation).
     local_max_iter : int or None

@@ -1,5 +1,10 @@
 """BLAS threads of the large dense kernels (fe_contact._threads)."""
 
+import ast
+import os
+import subprocess
+import sys
+
 import pytest
 from threadpoolctl import threadpool_info
 
@@ -32,3 +37,45 @@ def test_threads_raised_only_inside_large_kernels(monkeypatch):
     with _threads.dense_kernel(_threads.MIN_SIZE):
         assert blas_threads() == {2}
     assert blas_threads() == before
+
+
+def _blas_threads_in_child(env) -> set:
+    code = ("import fe_contact, threadpoolctl; print(sorted({l['num_threads'] for l in "
+            "threadpoolctl.threadpool_info() if l['user_api'] == 'blas'}))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    return set(ast.literal_eval(out.stdout.strip()))
+
+
+def _clean_environment() -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in _threads.USER_VARIABLES and k != _threads.ENV}
+    env["PYTHONPATH"] = os.pathsep.join(sys.path)
+    return env
+
+
+def test_a_process_started_without_thread_variables_runs_blas_on_one_thread():
+    """Issue 21: outside the Makefile nothing set OPENBLAS_NUM_THREADS, and a user's
+    runs on a busy 2-core machine took 4-7 times longer with BLAS threads."""
+    env = _clean_environment()
+    if len(os.sched_getaffinity(0)) < 2:
+        # with one CPU OpenBLAS starts on one thread anyway: the test could not fail
+        pytest.skip("needs 2 CPUs to tell the package's limit from OpenBLAS' default")
+    code = "import numpy, threadpoolctl; print(max(l['num_threads'] for l in threadpoolctl.threadpool_info()))"
+    default = int(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                 check=True).stdout)
+    assert default > 1  # numpy alone would use several threads
+    assert _blas_threads_in_child(env) == {1}
+
+
+def test_a_thread_variable_the_user_set_rules():
+    env = _clean_environment()
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    assert _blas_threads_in_child(env) == {2}
+
+
+@pytest.mark.parametrize("load, expected", [(0.0, 2), (1.0, 2), (1.4, 2), (1.6, 1), (3.0, 1), (40.0, 1)])
+def test_unset_dense_threads_are_the_cpus_other_work_leaves_idle(monkeypatch, load, expected):
+    """On 2 usable CPUs: this process's own load of 1 leaves both; more load leaves one."""
+    monkeypatch.delenv(_threads.ENV, raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    assert _threads.dense_threads() == expected

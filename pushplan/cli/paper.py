@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import EXIT_SOLVER_FAILURE
 
-LOCAL_METHODS = ("uzawa", "newton")
+LOCAL_METHODS = ("uzawa", "newton", "uzawa_jacobi")
 """``fe_contact.model.LOCAL_METHODS``, repeated so that ``--help`` does not import fe_contact."""
 
 

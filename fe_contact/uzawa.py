@@ -1,0 +1,179 @@
+"""The paper's Uzawa / bi-potential fixed point (sect. 8, eq. 42-45) for the
+condensed problem ``u = W r + q`` of :mod:`fe_contact.local_solver`.
+
+Each contact ``c`` is updated by
+
+    r_c <- proj_K(r_c - rho_c modified(u_c)),   rho_c = 1 / min(w_nn, w_txtx, w_tyty)   (eq. 44),
+
+with ``modified(u) = (u_n + ||M u_t||, u_t)`` (De Saxcé) and the diagonal
+entries ``w`` of the contact's own 3x3 block of ``W`` (m/N, so ``rho`` is in
+N/m).  Two orders of the updates:
+
+``"uzawa"`` (Gauss-Seidel, the paper's)
+    contact by contact, each ``u_c = q_c + W_c r`` seeing the reactions already
+    updated in this sweep.  Converges with the paper's ``rho`` unchanged on the
+    paper case.
+``"uzawa_jacobi"``
+    all contacts at once from the same ``u = W r + q``.  ``W`` of a continuum is
+    far from block diagonal (one nodal force moves its neighbours almost as much
+    as itself) and the plain iteration diverges or cycles: it is safeguarded by
+    halving all ``rho`` whenever the residual grows or stalls.
+
+Both keep the best iterate and restart from it with halved ``rho`` on growth,
+stall or blow-up, so that a problem they cannot solve ends as a reported
+non-convergence, never as an overflow.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .friction import _modified, _project, _project_kernel
+
+_GROWTH = 2.0  # residual growth that halves the Jacobi step ...
+_GROWTH_GS = 100.0  # ... and the Gauss-Seidel one, whose residual is not monotone in its first sweeps
+_BLOWUP = 1e6  # |r| beyond this many force scales is divergence
+_STALL_CHECKS = 5  # checks ...
+_STALL_RATIO = 0.9  # ... over which the residual must fall by 10 %
+
+
+def paper_rho(W) -> np.ndarray:
+    """``rho_c = 1 / min(w_nn, w_txtx, w_tyty)`` per contact (n,), over the positive
+    diagonal entries (a contact with no flexibility at all does not move: 1)."""
+    n = W.shape[0] // 3
+    diag = np.diag(W).reshape(n, 3)
+    wmin = np.where(diag > 0, diag, np.inf).min(axis=1)
+    return np.where(np.isfinite(wmin), 1.0 / np.where(np.isfinite(wmin), wmin, 1.0), 1.0)
+
+
+@njit(cache=True)
+def _gauss_seidel_sweeps(W, q, mx, my, rho, r, sweeps, stick_inverse):
+    """``sweeps`` Gauss-Seidel sweeps of eq. 44 over the contacts, in place on ``r`` (n, 3).
+
+    With ``stick_inverse`` (the inverses of the contacts' 3x3 diagonal blocks of
+    ``W``, shape (n, 3, 3); no rows: not used) a contact first tries sticking:
+    ``r_c = -W_cc^-1 (u_c - W_cc r_c)``, the reaction that cancels its own
+    displacement, is its exact local solution whenever it lies in ``K_mu``;
+    otherwise it takes the step of eq. 44.
+    """
+    n = q.shape[0]
+    rf = r.reshape(3 * n)
+    one = np.empty((1, 3))
+    stick = stick_inverse.shape[0] > 0
+    for _ in range(sweeps):
+        for c in range(n):
+            u0, u1, u2 = q[c, 0], q[c, 1], q[c, 2]
+            for j in range(3 * n):
+                rj = rf[j]
+                u0 += W[3 * c, j] * rj
+                u1 += W[3 * c + 1, j] * rj
+                u2 += W[3 * c + 2, j] * rj
+            if stick:
+                # displacement with this contact's own reaction taken out
+                f0, f1, f2 = u0, u1, u2
+                for i in range(3):
+                    ri = r[c, i]
+                    f0 -= W[3 * c, 3 * c + i] * ri
+                    f1 -= W[3 * c + 1, 3 * c + i] * ri
+                    f2 -= W[3 * c + 2, 3 * c + i] * ri
+                A = stick_inverse[c]
+                s0 = -(A[0, 0] * f0 + A[0, 1] * f1 + A[0, 2] * f2)
+                s1 = -(A[1, 0] * f0 + A[1, 1] * f1 + A[1, 2] * f2)
+                s2 = -(A[2, 0] * f0 + A[2, 1] * f1 + A[2, 2] * f2)
+                c1 = 0.0 if s1 == 0.0 else s1 / mx[c]
+                c2 = 0.0 if s2 == 0.0 else s2 / my[c]
+                if s0 >= 0.0 and math.hypot(c1, c2) <= s0:
+                    r[c, 0], r[c, 1], r[c, 2] = s0, s1, s2
+                    continue
+            rc = rho[c]
+            one[0, 0] = r[c, 0] - rc * (u0 + math.hypot(mx[c] * u1, my[c] * u2))
+            one[0, 1] = r[c, 1] - rc * u1
+            one[0, 2] = r[c, 2] - rc * u2
+            p = _project_kernel(one, mx[c:c + 1], my[c:c + 1])
+            r[c, 0], r[c, 1], r[c, 2] = p[0, 0], p[0, 1], p[0, 2]
+
+
+def _stick_inverses(W, n) -> np.ndarray:
+    """Inverses of the contacts' 3x3 diagonal blocks of ``W`` (n, 3, 3); a
+    singular block gets zeros (its stick reaction 0 is tried, harmlessly)."""
+    idx = 3 * np.arange(n)[:, None] + np.arange(3)
+    blocks = W[idx[:, :, None], idx[:, None, :]]
+    ok = np.abs(np.linalg.det(blocks)) > 1e-12 * np.maximum(np.abs(blocks).max(axis=(1, 2)), 1e-300) ** 3
+    inv = np.zeros_like(blocks)
+    inv[ok] = np.linalg.inv(blocks[ok])
+    return inv
+
+
+def uzawa(W, q, mx, my, r, tol, max_iter, residual, gauss_seidel=True):
+    """Safeguarded Uzawa (module docstring) from ``r`` (n, 3), on checked input.
+
+    ``residual(r, u)`` is the natural-map residual, checked after every sweep
+    (Gauss-Seidel) or every 10 (Jacobi).  Safeguards:
+
+    * a residual that is not finite, or reactions ``_BLOWUP`` times the
+      problem's force scale: restart from the best iterate with ``rho`` halved;
+    * Jacobi: a residual ``_GROWTH`` times the best, or one that falls by less
+      than ``_STALL_RATIO`` over ``_STALL_CHECKS`` checks, likewise;
+    * Gauss-Seidel: a stall over ``10 _STALL_CHECKS`` sweeps first turns on
+      the exact local stick solution (:func:`_gauss_seidel_sweeps`), which
+      large friction coefficients need (at ``mu = 1000`` the term ``mu
+      ||u_t||`` of eq. 44 makes the plain step crawl), then halves ``rho``;
+      the sweeps go on from the current iterate (its residual need not fall
+      monotonically).
+
+    Returns ``(r, u, iterations, residual, history)``: the last iterate, or
+    the best one if it has the lower residual, and the residual at each check.
+    """
+    n = q.shape[0]
+    rho = paper_rho(W)
+    W = np.ascontiguousarray(W)
+    check_every, window = (1, 10 * _STALL_CHECKS) if gauss_seidel else (10, _STALL_CHECKS)
+    omega = 1.0
+    history = []
+    best_r, best_res = r, np.inf
+    segment: list[float] = []  # residuals since the last change of the iteration
+    # force scale of the problem: a solution is far below _BLOWUP times this
+    r_ref = max(np.linalg.norm(r), np.linalg.norm(rho[:, None] * q), 1e-300)
+    stick_inverse = np.zeros((0, 3, 3))
+    it = 0
+    while it < max_iter:
+        u = (W @ r.ravel()).reshape(n, 3) + q
+        if it % check_every == 0:
+            res = residual(r, u)
+            history.append(res)
+            if res <= tol:
+                break
+            # the normalised residual shrinks as |r| blows up, so size guards it too
+            blown_up = not np.isfinite(res) or np.linalg.norm(r) > _BLOWUP * r_ref
+            if res < best_res and not blown_up:
+                best_r, best_res = r.copy(), res
+            segment.append(res)
+            stalled = len(segment) > window and res > _STALL_RATIO * segment[-window - 1]
+            grown = not gauss_seidel and res > _GROWTH * best_res
+            if gauss_seidel and stalled and not blown_up:
+                if stick_inverse.shape[0] == 0:
+                    stick_inverse = _stick_inverses(W, n)
+                else:
+                    omega *= 0.5
+                segment = []
+            elif blown_up or grown or stalled:
+                omega *= 0.5
+                r = best_r.copy()
+                u = (W @ r.ravel()).reshape(n, 3) + q
+                segment = []
+        if gauss_seidel:
+            r = np.array(r)
+            _gauss_seidel_sweeps(W, q, mx, my, omega * rho, r, 1, stick_inverse)
+        else:
+            r = _project(r - omega * rho[:, None] * _modified(u, mx, my), mx, my)
+        it += 1
+    u = (W @ r.ravel()).reshape(n, 3) + q
+    res = residual(r, u)
+    if res > best_res:
+        r, res = best_r, best_res
+        u = (W @ r.ravel()).reshape(n, 3) + q
+    history.append(res)
+    return r, u, it, res, history
