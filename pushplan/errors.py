@@ -4,6 +4,9 @@
                  nothing written.
 ``SolverFailure`` the model or the planner did not converge: exit 3, the finished
                  part of the run is kept.
+``OutputFailure`` the output could not be written (full disk, quota, read-only file
+                 system): one line, exit 1, the previous output left as it was.
+Interrupted (SIGINT): exit 130; the output folder is left as it was.
 
 Anything else raised inside ``pushplan`` is a bug: the CLI lets it through with its
 traceback (exit 1).  ``InputError`` is a ``ValueError`` so that library callers can
@@ -15,6 +18,8 @@ from __future__ import annotations
 
 EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
+EXIT_OUTPUT_FAILURE = 1
+EXIT_INTERRUPTED = 130
 
 
 class InputError(ValueError):
@@ -23,3 +28,7 @@ class InputError(ValueError):
 
 class SolverFailure(RuntimeError):
     """A solver or planner did not reach its tolerance; the message says which and why."""
+
+
+class OutputFailure(OSError):
+    """The output could not be written (full disk, quota, read-only file system)."""

@@ -2,8 +2,10 @@
 
 Exit status: 0 success; 2 bad input (:class:`~pushplan.errors.InputError`: one line,
 nothing written); 3 solver failure (:class:`~pushplan.errors.SolverFailure` or a run
-that stopped: message on stderr, the finished part kept); anything else is a bug
-and shows its traceback (exit 1).
+that stopped: message on stderr, the finished part kept); 1 with one line for an
+output that could not be written (:class:`~pushplan.errors.OutputFailure`: full disk,
+quota; the previous output left as it was); 130 when interrupted (SIGINT); anything
+else is a bug and shows its traceback (exit 1).
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import argparse
 import importlib
 import sys
 
-from ..errors import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, InputError, SolverFailure
+from ..errors import (EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT_FAILURE, EXIT_SOLVER_FAILURE, InputError,
+                      OutputFailure, SolverFailure)
 
 # each module has ``register(subparsers)`` and imports its heavy dependencies
 # (numpy, fe_contact, casadi, mujoco, rerun) inside the command function only
@@ -48,3 +51,15 @@ def main(argv=None) -> int:
     except SolverFailure as exc:
         print(f"pushplan: solver failure: {_one_line(exc)}", file=sys.stderr)
         return EXIT_SOLVER_FAILURE
+    except OSError as exc:
+        from ..outputs.transaction import output_failure
+
+        failure = exc if isinstance(exc, OutputFailure) else output_failure(exc, exc.filename or "the output")
+        if failure is None:
+            raise
+        print(f"pushplan: error: {_one_line(failure)}", file=sys.stderr)
+        return EXIT_OUTPUT_FAILURE
+    except KeyboardInterrupt:
+        resume = ", rerun to resume" if args.command in ("sweep", "convergence") else ""
+        print(f"pushplan: interrupted{resume}", file=sys.stderr)
+        return EXIT_INTERRUPTED

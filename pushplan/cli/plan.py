@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import EXIT_SOLVER_FAILURE
+from .simulate import add_memory_flag
 
 
 def _describe(e: dict) -> str:
@@ -39,26 +40,30 @@ def _verification_error(scenario, doc: dict, ratio: float) -> dict:
 def cmd_plan(args) -> int:
     from ..config import load_scenario
     from ..config.plan import parse_plan
-    from ..outputs import atomic_write_json, prepare_output_dir
+    from ..config.budget import check_memory
+    from ..outputs import atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..planning import plan, plan_document, write_recording
 
     scenario = load_scenario(args.scenario)
     spec = parse_plan(scenario)
-    out = prepare_output_dir(args.out)
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
+    tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
 
     def log(text):
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    result = plan(scenario, spec, log=log)
-    doc = plan_document(result)
-    if args.verification_error:
-        doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
-    atomic_write_json(out / "plan.json", doc)
-    wrote = [out / "plan.json"]
-    if not args.no_recording:
-        write_recording(result, out / "recording.rrd", scenario.model())
-        wrote.append(out / "recording.rrd")
+    with tx:
+        result = plan(scenario, spec, log=log)
+        doc = plan_document(result)
+        if args.verification_error:
+            doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
+        atomic_write_json(tx.path / "plan.json", doc)
+        wrote = [tx.out / "plan.json"]
+        if not args.no_recording:
+            write_recording(result, tx.path / "recording.rrd", scenario.model())
+            wrote.append(tx.out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")
     print(f"  planned final error (FE, verification mesh): {_describe(doc['final_error'])}")
     print(f"  naive final error   (FE, verification mesh): {_describe(doc['naive']['final_error'])}")
@@ -87,4 +92,5 @@ def register(subparsers) -> None:
     p.add_argument("--verification-ratio", type=float, default=1.5,
                    help="coarsening ratio of those meshes (default 1.5)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_plan)

@@ -7,6 +7,17 @@ import sys
 from ..errors import EXIT_SOLVER_FAILURE, InputError
 
 
+RUN_FILES = ("summary.json", "fields.npz", "recording.rrd")
+"""What ``simulate`` writes in ``--out`` (a previous run's files of these names are not kept)."""
+FCLIB_FILES = ("step_*.hdf5",)
+
+
+def add_memory_flag(parser) -> None:
+    """``--no-memory-check``: run even when the estimated memory exceeds what is available."""
+    parser.add_argument("--no-memory-check", action="store_true",
+                        help="run even if the estimated memory of the model exceeds the available memory")
+
+
 def print_steps(steps) -> None:
     """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, kN)."""
     print(f"{'step':>4} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'twist':>8} {'yaw':>8} "
@@ -28,20 +39,25 @@ def exit_status(run) -> int:
 
 def cmd_simulate(args) -> int:
     from ..config import load_commands, load_scenario
-    from ..outputs import prepare_output_dir
+    from contextlib import nullcontext
+
+    from ..outputs.transaction import output_transaction
     from ..run import simulate
+    from ..config.budget import check_memory
 
     scenario = load_scenario(args.scenario)
     commands = None if args.commands is None else load_commands(args.commands)
     if not (scenario.commands if commands is None else commands):
         raise InputError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
     model = scenario.model()  # mesh and material checks before anything is written
-    out = prepare_output_dir(args.out)
-    fclib_dir = prepare_output_dir(args.export_fclib) if args.export_fclib else None
-    run = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
-                   recording=not args.no_recording, export_fclib=fclib_dir)
+    out = output_transaction(args.out, RUN_FILES)
+    fclib = output_transaction(args.export_fclib, FCLIB_FILES) if args.export_fclib else nullcontext()
+    with out, fclib:
+        run = simulate(scenario, out.path, commands=commands, model=model, progress=not args.quiet,
+                       recording=not args.no_recording, export_fclib=fclib.path if args.export_fclib else None)
     print_steps(run.summary.steps)
-    print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
+    print(f"wrote {out.out / 'summary.json'} and {out.out / 'fields.npz'} ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 
 
@@ -54,4 +70,5 @@ def register(subparsers) -> None:
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--export-fclib", metavar="DIR",
                    help="write each step's last local contact problem to DIR/step_NNN.hdf5 (FCLIB)")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_simulate)
