@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from ..errors import (EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT_FAILURE, EXIT_SOLVER_FAILURE, InputError,
                       OutputFailure, SolverFailure)
@@ -42,7 +43,21 @@ def _one_line(exc: BaseException) -> str:
 
 
 def main(argv=None) -> int:
+    """Run a command; warnings raised on the way are shown after it, except before a
+    clean one-line outcome (exit 2, 3, 1 for a full disk, 130), which they would bury."""
     args = build_parser().parse_args(argv)
+    with warnings.catch_warnings(record=True) as caught:
+        status = None
+        try:
+            status = _run(args)
+        finally:
+            if status in (None, 0):
+                for w in caught:
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return status
+
+
+def _run(args) -> int:
     try:
         return args.func(args)
     except InputError as exc:

@@ -26,22 +26,24 @@ def lower_face_deviation(reference, other):
 
 
 def _source(path: Path):
-    """(commands, original recording or None) of a plan .json or an .rrd."""
-    from ..config import load_commands
+    """(commands, original recording or None, plan document or None) of a plan .json or an .rrd."""
+    from ..config.commands import read_command_file
     from ..outputs.recording_read import read_recording
 
     if path.suffix == ".rrd":
         original = read_recording(path)
-        return list(original.commands), original
+        return list(original.commands), original, None
     if path.suffix == ".json":
         sibling = path.parent / RECORDING_FILE
-        return list(load_commands(path)), read_recording(sibling) if sibling.is_file() else None
+        commands, document = read_command_file(path)
+        return list(commands), read_recording(sibling) if sibling.is_file() else None, document
     raise InputError(f"replay needs a plan .json or a .rrd recording, got {path}")
 
 
 def cmd_replay(args) -> int:
     from ..config import load_scenario, parse_scenario
     from ..config.budget import check_memory
+    from ..config.fingerprint import check_plan_scenario
     from ..outputs import atomic_write_json
     from ..outputs.transaction import output_transaction
     from ..outputs.recording import Recorder
@@ -51,11 +53,13 @@ def cmd_replay(args) -> int:
     from .simulate import RUN_FILES, exit_status
 
     source = Path(args.file)
-    commands, original = _source(source)
+    commands, original, document = _source(source)
     if not commands:
         raise InputError(f"{source} holds no commands")
     if args.scenario is not None:
         scenario = load_scenario(args.scenario)
+        if document is not None:
+            check_plan_scenario(document, scenario.to_dict(), source, force=args.force)
     elif original is not None and original.scenario is not None:
         scenario = parse_scenario(original.scenario, name=original.run_name)
     else:
@@ -117,6 +121,7 @@ def register(subparsers) -> None:
     p.add_argument("file", help="plan .json (its folder's recording.rrd is the reference) or .rrd")
     p.add_argument("--scenario", help="scenario TOML to replay with (default: the one stored in the recording)")
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz, recording.rrd, replay.json)")
+    p.add_argument("--force", action="store_true", help="replay a plan made for a scenario other than --scenario")
     p.add_argument("--field", default="slip", choices=COLOUR_FIELDS, help="block colour field")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_memory_flag(p)

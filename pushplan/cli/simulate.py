@@ -38,7 +38,9 @@ def exit_status(run) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from ..config import load_commands, load_scenario
+    from ..config import load_scenario
+    from ..config.commands import read_command_file
+    from ..config.fingerprint import check_plan_scenario
     from contextlib import nullcontext
 
     from ..outputs.transaction import output_transaction
@@ -46,7 +48,10 @@ def cmd_simulate(args) -> int:
     from ..config.budget import check_memory
 
     scenario = load_scenario(args.scenario)
-    commands = None if args.commands is None else load_commands(args.commands)
+    commands = None
+    if args.commands is not None:
+        commands, document = read_command_file(args.commands)
+        check_plan_scenario(document, scenario.to_dict(), args.commands, force=args.force)
     if not (scenario.commands if commands is None else commands):
         raise InputError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
     check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
@@ -66,6 +71,8 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file")
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz)")
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
+    p.add_argument("--force", action="store_true",
+                   help="run the --commands of a plan made for another scenario (block, material, friction, [plan])")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--export-fclib", metavar="DIR",

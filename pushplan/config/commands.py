@@ -69,11 +69,17 @@ def load_commands(path) -> tuple[Command, ...]:
     InputError
         Missing or malformed file, no ``commands`` list, or a bad entry (named).
     """
+    return read_command_file(path)[0]
+
+
+def read_command_file(path) -> tuple[tuple[Command, ...], dict]:
+    """The ``commands`` of a JSON file and the whole document (for the fingerprint
+    of :mod:`pushplan.config.fingerprint`)."""
     path = Path(path)
     data = read_json(path, "commands")
     if not isinstance(data, dict) or "commands" not in data:
         raise InputError(f"{path}: expected an object with a 'commands' list")
     try:
-        return commands_from_list(data["commands"])
+        return commands_from_list(data["commands"]), data
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None

@@ -61,6 +61,7 @@ parser) stays cheap.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -76,6 +77,10 @@ from ..config.commands import command_to_dict
 from .atomic import commit_temporary, reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
+FULL_DISK_BYTES = 2**20
+"""Free space below which a failed write of the recording is taken for a full disk."""
+FLUSH_TIMEOUT_S = 60.0
+"""A flush of one step takes milliseconds; rerun's file writer can stall on a full disk."""
 APPLICATION_ID = "pushplan"
 FIELDS = {  # name: (description, display unit, factor SI -> display unit)
     "slip": ("accumulated slip (norm of the total tangential displacement)", "um", 1e6),
@@ -247,7 +252,7 @@ class Recorder:
             vertex_colors=colours))
         for name, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
             self.stream.log(f"world/{name}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
-        self.stream.flush()
+        self._flush()
 
     def log_step(self, report: StepReport, summary=None) -> None:
         """Log one load step.
@@ -271,7 +276,7 @@ class Recorder:
             self.stream.log("log", rr.TextLog(
                 f"step {report.step_index} failed ({report.status.value}): {report.message}",
                 level=rr.TextLogLevel.ERROR))
-            self.stream.flush()
+            self._flush()
             return
         if summary is None or summary.step != report.step_index:
             raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
@@ -283,7 +288,7 @@ class Recorder:
         self.stream.log("legend", rr.TextDocument(f"## step {report.step_index}\n\n" + "\n\n".join(legend),
                                                   media_type=rr.MediaType.MARKDOWN))
         self._log_numbers(report, summary)
-        self.stream.flush()
+        self._flush()
 
     def _log_block(self, report: StepReport, deformed: np.ndarray) -> str:
         """Block surface coloured by the chosen lower-face field; returns its legend line."""
@@ -385,12 +390,23 @@ class Recorder:
             )
             self.stream.send_blueprint(self._blueprint(plan=True), make_active=False, make_default=True)
 
+    def _flush(self) -> None:
+        """Flush the stream; a full disk is the OSError it is (rerun reports it as a
+        RuntimeError of its file-writer thread)."""
+        try:
+            self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:
+            st = os.statvfs(self._tmp.parent)
+            if st.f_bavail * st.f_frsize >= FULL_DISK_BYTES:
+                raise  # not a full disk: a bug or a rerun failure, with its traceback
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path)) from exc
+
     # -- closing -----------------------------------------------------------------------
     def close(self) -> Path:
         """Flush, disconnect and move the finished file into place; returns its path."""
         if not self._closed:
             self._closed = True
-            self.stream.flush()
+            self._flush()
             self.stream.disconnect()
             commit_temporary(self._tmp, self.path)
         return self.path
