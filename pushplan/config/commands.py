@@ -20,6 +20,9 @@ from .files import read_json
 from .validate import Table
 
 COMMAND_KEYS = ("dx", "dy", "dz", "dtheta_deg")
+MAX_TURN_DEG = 180.0
+"""Largest turn of one step, exclusive: a rotation is known modulo 360 deg, so a turn of
+half a revolution or more in one step would be silently another one (360 deg = none)."""
 
 
 def degrees_exact(angle: float) -> float:
@@ -42,7 +45,8 @@ def command_to_dict(c: Command) -> dict:
 def command_from_dict(item, key: str) -> Command:
     """A command from its dict; missing components are 0; ``key`` names it in messages."""
     t = Table(item, key, COMMAND_KEYS)
-    dx, dy, dz, dtheta_deg = (t.number(k, 0.0) for k in COMMAND_KEYS)
+    dx, dy, dz = (t.number(k, 0.0) for k in COMMAND_KEYS[:3])
+    dtheta_deg = t.number("dtheta_deg", 0.0, lo=-MAX_TURN_DEG, hi=MAX_TURN_DEG)
     return Command(dx, dy, dz, math.radians(dtheta_deg))
 
 
