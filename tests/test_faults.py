@@ -5,7 +5,6 @@ and the previous output intact; a second run into a locked ``--out`` refuses; a
 silent scheduler fails within 30 s; a killed pool worker is replaced and its case
 rerun; SIGINT stops a sweep with exit 130 and a rerun resumes it."""
 
-import errno
 import hashlib
 import json
 import os
@@ -150,8 +149,8 @@ def test_kill_9_during_simulate_leaves_the_old_or_the_new_output(simulate_setup)
     # the next run repairs and removes what a killed one left (the lock died with it)
     dirty = [p for p in sorted(tmp.glob("k*")) if leftovers(p, "out")][:2] or [tmp / "k0"]
     for parent in dirty:
-        assert subprocess.run(cli("simulate", tmp / "old.toml", "--out", parent / "out", "--quiet", "--no-recording"),
-                              env=ENV, capture_output=True, timeout=120).returncode == 0
+        rerun = cli("simulate", tmp / "old.toml", "--out", parent / "out", "--quiet", "--no-recording")
+        assert subprocess.run(rerun, env=ENV, capture_output=True, timeout=120).returncode == 0
         assert leftovers(parent, "out") == []
         assert not (parent / "out" / "recording.rrd").exists()  # a run without a recording keeps no old one
 
@@ -178,7 +177,8 @@ def test_kill_9_during_a_sweep_leaves_complete_case_folders_and_no_worker(tmp_pa
     subprocess.run(cli("sweep", tmp_path / "sweep.toml", "--out", tmp_path / "full", "--quiet"), env=ENV,
                    check=True, capture_output=True, timeout=300)
     duration = time.monotonic() - t0
-    new_keys = {p.name: json.loads((p / "case.json").read_text())["key"] for p in (tmp_path / "full" / "cases").iterdir()}
+    new_keys = {p.name: json.loads((p / "case.json").read_text())["key"]
+                for p in (tmp_path / "full" / "cases").iterdir()}
     rng = random.Random(2300)
     delays = sorted(rng.uniform(0.2, duration) for _ in range(KILL_POINTS))
     seen = set()
@@ -240,7 +240,8 @@ def test_full_disk_exits_1_with_one_line_and_keeps_the_previous_output(tmp_path)
     (tmp_path / "new.toml").write_text(SCENARIO.format(repeat=40))
     disk = tmp_path / "disk"
     disk.mkdir()
-    env = {**ENV, "DISK": str(disk), "WORK": str(tmp_path), "PATH": f"{Path(sys.executable).parent}:{ENV['PATH']}"}
+    env = {**ENV, "DISK": str(disk), "WORK": str(tmp_path),
+           "PATH": f"{Path(sys.executable).parent}:{ENV['PATH']}"}
     unshare = shutil.which("unshare")
     proc = subprocess.run([unshare, "--user", "--map-root-user", "--mount", "bash", "-c", FULL_DISK_SCRIPT],
                           env=env, capture_output=True, text=True, timeout=300) if unshare else None
@@ -270,8 +271,8 @@ def simulated_enospc(tmp_path) -> list[str]:
     subprocess.run(cli("simulate", tmp_path / "old.toml", "--out", out, "--quiet"), env=ENV, check=True,
                    capture_output=True, timeout=120)
     before = snapshot(out)
-    proc = subprocess.run([sys.executable, "-c", code, "simulate", tmp_path / "new.toml", "--out", out, "--quiet"],
-                          env=ENV, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-c", code, "simulate", tmp_path / "new.toml", "--out", out,
+                           "--quiet", "--no-recording"], env=ENV, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert snapshot(out) == before and leftovers(tmp_path, "out") == []
     return proc.stderr.strip().splitlines()

@@ -44,7 +44,7 @@ workers = 1
 [grid]
 "friction.mu_y" = [0.1, 0.2]
 """
-HUGE_MEMORY = "elements = [100, 100, 4]"  # passes validation, ~35 GB by the estimate
+HUGE_MEMORY = "elements = [100, 100, 4]"  # passes validation, ~33 GB by the estimate
 
 
 def edit(text, old, new):

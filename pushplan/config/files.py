@@ -71,14 +71,16 @@ def check_nesting(text: str, path, what: str, toml: bool = True) -> None:
             depth += 1
             if depth > MAX_NESTING:
                 line = text.count("\n", 0, m.start()) + 1
-                raise InputError(f"{what} file {path}: nesting deeper than {MAX_NESTING} levels at line {line}")
+                raise InputError(f"cannot read {what} file {path}: nesting deeper than {MAX_NESTING} levels "
+                                 f"at line {line}")
         elif token in "]}":
             depth -= 1
         if token == ".":
             dots += 1
             if dots >= MAX_KEY_PARTS:
                 line = text.count("\n", 0, m.start()) + 1
-                raise InputError(f"{what} file {path}: a dotted key of more than {MAX_KEY_PARTS} parts at line {line}")
+                raise InputError(f"cannot read {what} file {path}: a dotted key of more than {MAX_KEY_PARTS} "
+                                 f"parts at line {line}")
         elif len(token) == 1 and token in "[]{}=,\n":
             dots = 0
 
