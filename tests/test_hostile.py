@@ -300,3 +300,59 @@ def test_fclib_reader_refuses_a_small_file_declaring_a_huge_problem(tmp_path):
     assert path.stat().st_size < 100_000
     with pytest.raises(ValueError, match="1000000 contacts"):
         read_local_problem(path)
+
+
+# ---- overrides and limits that are not errors ---------------------------------------
+
+
+def test_force_runs_a_plan_made_for_another_scenario(tmp_path, capsys):
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "plan.json").write_text(plan_json(**{"friction.mu_y": 0.2}))
+    argv = ["simulate", str(tmp_path / "base.toml"), "--out", str(tmp_path / "out"), "--quiet", "--no-recording",
+            "--commands", str(tmp_path / "plan.json")]
+    assert main(argv) == EXIT_BAD_INPUT
+    assert main([*argv, "--force"]) == 0
+    assert len(json.loads((tmp_path / "out" / "summary.json").read_text())["steps"]) == 2
+
+
+def test_the_memory_check_can_be_overridden_and_counts_parallel_cases():
+    from pushplan.config.budget import available_memory, check_memory, estimate_memory
+
+    huge = (100, 100, 4)
+    assert check_memory(huge, 2, override=True) == estimate_memory(huge, 2) > 30e9
+    assert check_memory((2, 2, 1), 2, copies=3) == 3 * estimate_memory((2, 2, 1), 2)
+    limit = available_memory()
+    assert limit is None or limit > estimate_memory((2, 2, 1), 2)
+
+
+def test_long_grid_values_give_short_unique_case_ids(tmp_path):
+    from pushplan.config.sweep import MAX_CASE_ID, load_sweep
+
+    (tmp_path / "base.toml").write_text(BASE)
+    sizes = [[0.02 + i * 1e-13, 0.020000000000000004, 0.010000000000000002] for i in range(3)]
+    (tmp_path / "sweep.toml").write_text(
+        f'base = "base.toml"\n[grid]\n"block.size" = {json.dumps(sizes)}\n"friction.mu_y" = [0.1000000000000001]\n'
+        f'"material.young" = [210000000000.00003]\n"friction.mu_x" = [0.30000000000000004]\n')
+    cases = load_sweep(tmp_path / "sweep.toml").cases
+    ids = [c.case_id for c in cases]
+    assert len(set(ids)) == 3 and all(len(i) <= MAX_CASE_ID for i in ids)
+    assert all(len("_".join(f"{k}={v}" for k, v in c.params.items())) > MAX_CASE_ID for c in cases)
+    for i in ids:  # a real folder name
+        (tmp_path / "cases" / i).mkdir(parents=True)
+
+
+def test_numpy_warnings_do_not_precede_a_one_line_outcome(tmp_path):
+    """A push to 1e300 m overflows inside the model: exit 3 with the solver's one line,
+    not numpy's RuntimeWarnings first (a real process: pytest records warnings itself)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "s.toml").write_text(edit(BASE, "[solver]", "[[load]]\ndx = 1e300\n[solver]"))
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-m", "pushplan.cli", "simulate", str(tmp_path / "s.toml"), "--out",
+                           str(tmp_path / "out"), "--quiet", "--no-recording"], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 3
+    assert proc.stderr.strip().splitlines() == [
+        "pushplan: solver failure: non-finite internal force at Newton iteration 0"]
