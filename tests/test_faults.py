@@ -87,10 +87,16 @@ def pgroup_alive(pgid: int) -> bool:
     return False
 
 
-def kill_and_wait(proc, delay: float) -> float:
-    """``kill -9`` the run after ``delay`` s (or let it end); seconds until no process
-    of its group (the run started in its own session) is left."""
-    time.sleep(delay)
+def kill_and_wait(proc, delay, timeout: float = 60.0) -> float:
+    """``kill -9`` the run after ``delay`` s, or as soon as ``delay()`` is true (or
+    let it end); seconds until no process of its group (the run started in its own
+    session) is left."""
+    if callable(delay):
+        t0 = time.monotonic()
+        while not delay() and proc.poll() is None and time.monotonic() - t0 < timeout:
+            time.sleep(0.002)
+    else:
+        time.sleep(delay)
     if proc.poll() is None:
         proc.kill()
     proc.wait()
@@ -128,13 +134,24 @@ def test_kill_9_during_simulate_leaves_the_old_or_the_new_output(simulate_setup)
     tmp, good, duration = simulate_setup
     old = snapshot(good)
     rng = random.Random(23)
-    # spread over the whole life of the process: start-up, steps, the final writes and the swap
+    # spread over the whole life of the process: start-up, steps, the final writes and the
+    # swap; and three points aimed at the transaction: its folder created, steps in it,
+    # its last file written (the swap follows)
     delays = sorted(rng.uniform(0.1, 1.1 * duration) for _ in range(KILL_POINTS))
+
+    def staged(parent, name=None):
+        def ready():
+            found = list(parent.glob(".out.*.partial")) + list(parent.glob(".out.*.ready"))
+            return bool(found) and (name is None or any((f / name).exists() for f in found))
+        return ready
+
     outcomes = []
-    for i, delay in enumerate(delays):
+    for i, delay in enumerate([*delays, "partial", "summary.json", "fields.npz"]):
         parent = tmp / f"k{i}"
         parent.mkdir()
         out = parent / "out"
+        if isinstance(delay, str):
+            delay = staged(parent, None if delay == "partial" else delay)
         shutil.copytree(good, out)
         proc = subprocess.Popen(cli("simulate", tmp / "new.toml", "--out", out, "--quiet"), env=ENV,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
@@ -145,7 +162,8 @@ def test_kill_9_during_simulate_leaves_the_old_or_the_new_output(simulate_setup)
         else:  # not the old output: then all of the new one, nothing of the old
             check_simulate_output(out, 41)
             outcomes.append("new")
-    assert len(outcomes) >= KILL_POINTS and "old" in outcomes
+    print(f"kill -9 of simulate at {[round(d, 2) for d in delays]} s and at the transaction's stages: {outcomes}")
+    assert len(outcomes) >= KILL_POINTS + 3 and "old" in outcomes
     # the next run repairs and removes what a killed one left (the lock died with it)
     dirty = [p for p in sorted(tmp.glob("k*")) if leftovers(p, "out")][:2] or [tmp / "k0"]
     for parent in dirty:
@@ -181,10 +199,15 @@ def test_kill_9_during_a_sweep_leaves_complete_case_folders_and_no_worker(tmp_pa
                 for p in (tmp_path / "full" / "cases").iterdir()}
     rng = random.Random(2300)
     delays = sorted(rng.uniform(0.2, duration) for _ in range(KILL_POINTS))
-    seen = set()
-    for i, delay in enumerate(delays):
+    seen, states = set(), []
+    for i, delay in enumerate([*delays, "first case"]):
         out = tmp_path / f"k{i}"
         shutil.copytree(good, out)
+        if delay == "first case":  # as soon as one case folder of the new sweep is in place
+
+            def delay(out=out):
+                return any(json.loads((p / "case.json").read_text())["key"] == new_keys[p.name]
+                           for p in (out / "cases").iterdir() if (p / "case.json").exists() and p.name in new_keys)
         proc = subprocess.Popen(cli("sweep", tmp_path / "sweep.toml", "--out", out, "--quiet"), env=ENV,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         assert kill_and_wait(proc, delay) <= SURVIVAL_S  # the pool workers die with the sweep
@@ -195,6 +218,8 @@ def test_kill_9_during_a_sweep_leaves_complete_case_folders_and_no_worker(tmp_pa
             if state == "old":
                 assert snapshot(out / "cases" / name) == old
             seen.add(state)
+        states.append(sorted(case_state(out / "cases" / n, new_keys[n]) for n in old_cases))
+    print(f"kill -9 of sweep at {[round(d, 2) for d in delays]} s and after its first case: case folders {states}")
     assert "old" in seen
 
 

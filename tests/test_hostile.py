@@ -217,8 +217,9 @@ def test_the_table_has_at_least_60_cases():
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_hostile_input_is_one_line_exit_2_and_leaves_the_output(name, tmp_path, capsys, good_output):
+def test_hostile_input_is_one_line_exit_2_and_leaves_the_output(name, tmp_path, capsys, good_output, monkeypatch):
     kind, payload, fragments = CASES[name]
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes MUJOCO_LOG.TXT into the current folder
     shutil.copytree(good_output, tmp_path / "out")
     argv = prepare(kind, payload, tmp_path)
     before = snapshot(tmp_path / "out")

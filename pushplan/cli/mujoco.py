@@ -59,14 +59,16 @@ def cmd_compare(args) -> int:
     import math
 
     from ..mujoco.compare import MODEL_NOTES, compare
-    from ..outputs.atomic import prepare_output_dir
+    from ..outputs.transaction import output_transaction
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
     models = [name for name in MODEL_NOTES if not (args.no_flex and name == "flex_isotropic")]
     fe_model = _fe_model(args, scene)
-    out = prepare_output_dir(args.out)
-    result = compare(scene, commands, settings, fe_model, models, out)
+    tx = output_transaction(args.out, ("comparison.json", "comparison.png"))
+    with tx:
+        result = compare(scene, commands, settings, fe_model, models, tx.path)
+    out = tx.out
     print(f"{'model':>15} {'lower x,y (mm)':>20} {'twist':>9} {'deviation':>10} {'wall':>7}")
     for name, run in result.models.items():
         last = run.steps[-1]
@@ -83,16 +85,19 @@ def cmd_cosim(args) -> int:
     import numpy as np
 
     from ..mujoco.cosim import run_cosimulation
-    from ..outputs.atomic import atomic_write_json, prepare_output_dir
+    from ..outputs.atomic import atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..run.summary import RunStatus
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
     fe_model = _fe_model(args, scene)
-    out = prepare_output_dir(args.out)
-    record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
-                              rrd_path=None if args.no_rerun else out / "cosim.rrd")
-    atomic_write_json(out / "cosim.json", record.to_dict())
+    tx = output_transaction(args.out, ("cosim.json", "cosim.rrd"))
+    with tx:
+        record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
+                                  rrd_path=None if args.no_rerun else tx.path / "cosim.rrd")
+        atomic_write_json(tx.path / "cosim.json", record.to_dict())
+    out = tx.out
     for p in record.periods:
         rep = p.report
         lo = np.asarray(rep.lower_centroid) * 1e3

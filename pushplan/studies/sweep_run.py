@@ -7,8 +7,10 @@ Outputs in ``DIR``:
     The resolved sweep: base, overrides, and every case's id, parameters and key.
 ``cases/<id>/``
     The runner's files (``summary.json``, ``fields.npz`` for ``simulate``) and
-    ``case.json`` (status, error, key), written last.  A rerun skips the cases
-    whose ``case.json`` holds the same key and a finished status.
+    ``case.json`` (status, error, key), the folder swapped in whole
+    (:mod:`pushplan.outputs.transaction`): a killed sweep leaves each case folder as it
+    was or complete.  A rerun skips the cases whose ``case.json`` holds the same key
+    and a finished status.  The sweep folder is locked while a sweep runs in it.
 ``results.csv`` (and ``results.parquet``), the heat map
     :mod:`pushplan.studies.sweep_tables`.
 
@@ -16,7 +18,8 @@ Workers compute in a scratch folder and send the files back, so a remote Dask
 cluster needs no shared file system; the client writes every output.  Each local
 worker process runs one BLAS / OpenMP thread and one dense-kernel thread
 (:data:`THREAD_VARIABLES`, unless the caller's environment sets them); the
-caller's own environment is left as it is.
+caller's own environment is left as it is.  Pool workers die with the sweep, a dead
+worker's cases run again, Ctrl-C stops the workers (:mod:`.sweep_pool`).
 """
 
 from __future__ import annotations
