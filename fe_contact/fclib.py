@@ -101,6 +101,31 @@ class LocalProblem:
         return bool(np.array_equal(self.mu_x, self.mu_y))
 
 
+MAX_CONTACTS = 20_000
+"""Largest local problem :func:`read_local_problem` reads by default (W of 29 GB)."""
+
+
+def _dataset(group: h5py.Group, name: str) -> h5py.Dataset:
+    """The dataset ``name`` of ``group``; ValueError naming it when absent or a group."""
+    obj = group.get(name)
+    if not isinstance(obj, h5py.Dataset):
+        raise ValueError(f"{group.file.filename}: dataset {group.name.rstrip('/')}/{name} is "
+                         f"{'missing' if obj is None else 'not a dataset'}")
+    return obj
+
+
+def _scalar(group: h5py.Group, name: str) -> int:
+    """The integer in the one-element dataset ``name`` of ``group``."""
+    d = _dataset(group, name)
+    if d.size != 1 or d.dtype.kind not in "iuf":
+        raise ValueError(f"{group.file.filename}: {group.name.rstrip('/')}/{name} must hold one number, "
+                         f"got shape {d.shape} of {d.dtype}")
+    v = d[()].ravel()[0] if d.shape else d[()]
+    if not float(v).is_integer():
+        raise ValueError(f"{group.file.filename}: {group.name.rstrip('/')}/{name} must be an integer, got {v}")
+    return int(v)
+
+
 def read_sparse_matrix(group: h5py.Group) -> sp.csr_array:
     """Read an FCLIB ``fclib_matrix`` group ``{m, n, nz, nzmax, p, i, x}``.
 
@@ -111,13 +136,18 @@ def read_sparse_matrix(group: h5py.Group) -> sp.csr_array:
     ValueError
         Unknown ``nz`` code or arrays inconsistent with ``m``, ``n``.
     """
-    m, n, nz = (int(group[k][()].ravel()[0]) for k in ("m", "n", "nz"))
+    where = group.name
+    m, n, nz = (_scalar(group, k) for k in ("m", "n", "nz"))
+    if m < 0 or n < 0:
+        raise ValueError(f"{where}: negative shape ({m}, {n})")
+    limit = m * n + max(m, n) + 1  # no layout stores more entries than a dense matrix
+    sizes = {k: _dataset(group, k).size for k in ("p", "i", "x")}
+    if max(sizes.values()) > limit:
+        raise ValueError(f"{where}: datasets p, i, x of {sizes['p']}, {sizes['i']}, {sizes['x']} entries "
+                         f"for a ({m}, {n}) matrix")
     p = np.asarray(group["p"][()], dtype=np.int64).ravel()
     i = np.asarray(group["i"][()], dtype=np.int64).ravel()
     x = np.asarray(group["x"][()], dtype=float).ravel()
-    where = group.name
-    if m < 0 or n < 0:
-        raise ValueError(f"{where}: negative shape ({m}, {n})")
     if nz >= _TRIPLET_MIN:
         if min(p.size, i.size, x.size) < nz:
             raise ValueError(f"{where}: triplet with nz={nz} but p, i, x have {p.size}, {i.size}, {x.size} entries")
@@ -134,12 +164,18 @@ def read_sparse_matrix(group: h5py.Group) -> sp.csr_array:
     return _checked_coo(where, val, rows, cols, (m, n)).tocsr()
 
 
-def read_local_problem(path: str | os.PathLike) -> LocalProblem:
+def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS) -> LocalProblem:
     """Read a local FCLIB problem, restoring the anisotropic one if our group is present.
+
+    The datasets are checked present, and their declared shapes consistent
+    (``mu`` (nc,), ``q`` (3 nc,), ``W`` (3 nc, 3 nc), at most ``max_contacts``
+    contacts), before anything of their size is read.
 
     Parameters
     ----------
     path : path of an HDF5 file with a ``/fclib_local`` group.
+    max_contacts : int
+        Largest problem read (``W`` is dense: 8 (3 nc)^2 bytes).
 
     Returns
     -------
@@ -148,23 +184,33 @@ def read_local_problem(path: str | os.PathLike) -> LocalProblem:
     Raises
     ------
     ValueError
-        Not a 3D local problem, a mixed problem (``V``, ``R``), or inconsistent data.
+        Not a 3D local problem, a mixed problem (``V``, ``R``), a missing dataset,
+        or inconsistent data.
     """
     with h5py.File(path, "r") as f:
         if "fclib_local" not in f:
             raise ValueError(f"{path}: no /fclib_local group (not a local FCLIB problem)")
         loc = f["fclib_local"]
-        spacedim = int(loc["spacedim"][()].ravel()[0])
+        spacedim = _scalar(loc, "spacedim")
         if spacedim != 3:
             raise ValueError(f"{path}: spacedim must be 3, got {spacedim}")
         if "V" in loc or "R" in loc:
             raise ValueError(f"{path}: mixed local problems (V, R, s) are not supported")
+        # declared shapes checked before anything of their size is read
+        nc = _dataset(loc, "vectors/mu").size
+        q_set = _dataset(loc, "vectors/q")
+        if q_set.shape not in ((3 * nc,), (nc, 3)):
+            raise ValueError(f"{path}: /fclib_local/vectors/q has shape {q_set.shape}, expected ({3 * nc},) "
+                             f"for the {nc} contacts of mu")
+        if nc < 1 or nc > max_contacts:
+            raise ValueError(f"{path}: {nc} contacts (mu), expected 1 to {max_contacts}")
+        shape = tuple(_scalar(loc, f"W/{k}") for k in ("m", "n"))
+        if shape != (3 * nc, 3 * nc):
+            raise ValueError(f"{path}: /fclib_local/W is declared {shape}, expected ({3 * nc}, {3 * nc}) "
+                             f"for {nc} contacts")
         W = read_sparse_matrix(loc["W"]).toarray()
-        q = np.asarray(loc["vectors/q"][()], dtype=float).reshape(-1, 3)
+        q = np.asarray(q_set[()], dtype=float).reshape(nc, 3)
         mu = np.asarray(loc["vectors/mu"][()], dtype=float).ravel()
-        nc = q.shape[0]
-        if W.shape != (3 * nc, 3 * nc) or mu.shape != (nc,):
-            raise ValueError(f"{path}: W {W.shape}, q {3 * nc}, mu {mu.shape} do not describe {nc} contacts")
         title = _read_string(loc, "info/title")
         description = _read_string(loc, "info/description")
         r = _read_vector(f, "solution/r", nc)

@@ -4,6 +4,9 @@
                  nothing written.
 ``SolverFailure`` the model or the planner did not converge: exit 3, the finished
                  part of the run is kept.
+``OutputFailure`` the output could not be written (full disk, quota, read-only file
+                 system): one line, exit 1, the previous output left as it was.
+Interrupted (SIGINT): exit 130; the output folder is left as it was.
 
 Anything else raised inside ``pushplan`` is a bug: the CLI lets it through with its
 traceback (exit 1).  ``InputError`` is a ``ValueError`` so that library callers can
@@ -17,6 +20,8 @@ EXIT_BAD_INPUT = 2
 EXIT_SOLVER_FAILURE = 3
 EXIT_UNAVAILABLE = 4
 """What the command needs is not on this machine (``view`` without a display or viewer)."""
+EXIT_OUTPUT_FAILURE = 1
+EXIT_INTERRUPTED = 130
 
 
 class InputError(ValueError):
@@ -30,3 +35,5 @@ class SolverFailure(RuntimeError):
 class InputWarning(UserWarning):
     """Input that is valid but probably not what was meant (a modulus in MPa given as Pa);
     the CLI prints it as one ``pushplan: warning:`` line and goes on."""
+class OutputFailure(OSError):
+    """The output could not be written (full disk, quota, read-only file system)."""

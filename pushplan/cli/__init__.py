@@ -3,8 +3,10 @@
 Exit status: 0 success; 2 bad input (:class:`~pushplan.errors.InputError`: one line,
 nothing written); 3 solver failure (:class:`~pushplan.errors.SolverFailure` or a run
 that stopped: message on stderr, the finished part kept); 4 what the command needs is
-not on this machine (``view`` without a display); anything else is a bug and shows its
-traceback (exit 1).
+not on this machine (``view`` without a display); 1 with one line for an output that
+could not be written (:class:`~pushplan.errors.OutputFailure`: full disk, quota; the
+previous output left as it was); 130 when interrupted (SIGINT); anything else is a bug
+and shows its traceback (exit 1).
 """
 
 from __future__ import annotations
@@ -14,7 +16,8 @@ import importlib
 import sys
 import warnings
 
-from ..errors import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, InputError, SolverFailure
+from ..errors import (EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT_FAILURE, EXIT_SOLVER_FAILURE, InputError,
+                      InputWarning, OutputFailure, SolverFailure)
 
 # each module has ``register(subparsers)`` and imports its heavy dependencies
 # (numpy, fe_contact, casadi, mujoco, rerun) inside the command function only
@@ -56,17 +59,41 @@ def _one_line(exc: BaseException) -> str:
 
 
 def main(argv=None) -> int:
+    """Run a command; warnings raised on the way are shown after it, except before a
+    clean one-line outcome (exit 2, 3, 1 for a full disk, 130), which they would bury."""
     args = build_parser().parse_args(argv)
-    from ..errors import InputWarning
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", InputWarning)
+        status = None
+        try:
+            status = _run(args)
+        finally:
+            for w in caught:
+                if issubclass(w.category, InputWarning):
+                    _show_warning(w.message, w.category, w.filename, w.lineno)
+                elif status in (None, 0):
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return status
 
+
+def _run(args) -> int:
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("always", InputWarning)
-            warnings.showwarning = _show_warning
-            return args.func(args)
+        return args.func(args)
     except InputError as exc:
         print(f"pushplan: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SolverFailure as exc:
         print(f"pushplan: solver failure: {_one_line(exc)}", file=sys.stderr)
         return EXIT_SOLVER_FAILURE
+    except OSError as exc:
+        from ..outputs.transaction import output_failure
+
+        failure = exc if isinstance(exc, OutputFailure) else output_failure(exc, exc.filename or "the output")
+        if failure is None:
+            raise
+        print(f"pushplan: error: {_one_line(failure)}", file=sys.stderr)
+        return EXIT_OUTPUT_FAILURE
+    except KeyboardInterrupt:
+        resume = ", rerun to resume" if args.command in ("sweep", "convergence") else ""
+        print(f"pushplan: interrupted{resume}", file=sys.stderr)
+        return EXIT_INTERRUPTED

@@ -7,9 +7,11 @@ import math
 import sys
 
 from ..errors import EXIT_SOLVER_FAILURE, InputError
+from .simulate import add_memory_flag
 
 
 def _check(args, scenario) -> None:
+    from ..config.budget import check_memory
     from ..config.scenario import MAX_ELEMENTS
     from ..studies.convergence import level_elements
 
@@ -21,6 +23,8 @@ def _check(args, scenario) -> None:
     if math.prod(finest) > MAX_ELEMENTS:
         raise InputError(f"--levels {args.levels} --ratio {args.ratio}: the finest mesh {list(finest)} has more "
                          f"than {MAX_ELEMENTS} elements")
+    check_memory(finest, scenario.quadrature, override=args.no_memory_check,
+                 what=f"--levels {args.levels} --ratio {args.ratio}: the finest mesh")
     if not scenario.commands:
         raise InputError(f"nothing to simulate: no load steps in {args.scenario}")
 
@@ -37,7 +41,7 @@ def _print(result) -> None:
 
 def cmd_convergence(args) -> int:
     from ..config import load_scenario, parse_scenario
-    from ..outputs import prepare_output_dir
+    from ..outputs.transaction import output_transaction
     from ..studies.convergence import study, sweep_levels, write
 
     scenario = load_scenario(args.scenario)
@@ -45,14 +49,17 @@ def cmd_convergence(args) -> int:
         scenario = parse_scenario({**scenario.to_dict(), "block": {**scenario.to_dict()["block"],
                                                                    "elements": args.elements}})
     _check(args, scenario)
-    out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    run_levels = None
-    if args.workers is not None or args.executor is not None or args.scheduler is not None:
-        run_levels = sweep_levels(args.scenario, out, workers=args.workers, executor=args.executor,
-                                  scheduler=args.scheduler)
-    result = study(scenario, args.levels, args.ratio, run_levels=run_levels, log=log)
-    paths = write(result, out)
+    # the study's files are one transaction; the levels (a resumable sweep, OUT/levels/)
+    # are written in place, case by case, under the same lock, and carried over
+    tx = output_transaction(args.out, ("convergence.json", "convergence.png"))
+    with tx:
+        run_levels = None
+        if args.workers is not None or args.executor is not None or args.scheduler is not None:
+            run_levels = sweep_levels(args.scenario, tx.out, workers=args.workers, executor=args.executor,
+                                      scheduler=args.scheduler)
+        result = study(scenario, args.levels, args.ratio, run_levels=run_levels, log=log)
+        paths = [tx.out / p.name for p in write(result, tx.path)]
     _print(result)
     print("wrote " + ", ".join(str(p) for p in paths))
     if not result.completed:
@@ -76,4 +83,5 @@ def register(subparsers) -> None:
     p.add_argument("--executor", choices=("process", "dask"), help="sweep executor for the levels")
     p.add_argument("--scheduler", help="address of a running Dask scheduler for the levels")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_convergence)

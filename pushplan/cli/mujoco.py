@@ -64,14 +64,16 @@ def cmd_compare(args) -> int:
     import math
 
     from ..mujoco.compare import MODEL_NOTES, compare
-    from ..outputs.atomic import prepare_output_dir
+    from ..outputs.transaction import output_transaction
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
     models = [name for name in MODEL_NOTES if not (args.no_flex and name == "flex_isotropic")]
     fe_model = _fe_model(args, scene)
-    out = prepare_output_dir(args.out)
-    result = compare(scene, commands, settings, fe_model, models, out)
+    tx = output_transaction(args.out, ("comparison.json", "comparison.png"))
+    with tx:
+        result = compare(scene, commands, settings, fe_model, models, tx.path)
+    out = tx.out
     print("world frame: lower = lower-face centre displacement, yaw = its yaw change")
     print(f"{'model':>15} {'lower x,y (mm)':>20} {'yaw':>9} {'twist':>9} {'deviation':>10} {'wall':>7}")
     for name, run in result.models.items():
@@ -89,17 +91,20 @@ def cmd_cosim(args) -> int:
     import numpy as np
 
     from ..mujoco.cosim import run_cosimulation
-    from ..outputs.atomic import atomic_write_json, prepare_output_dir
+    from ..outputs.atomic import atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..run.summary import RunStatus, StepSummary
     from .units import engineering, twist_text
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
     fe_model = _fe_model(args, scene)
-    out = prepare_output_dir(args.out)
-    record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
-                              rrd_path=None if args.no_rerun else out / "cosim.rrd")
-    atomic_write_json(out / "cosim.json", record.to_dict())
+    tx = output_transaction(args.out, ("cosim.json", "cosim.rrd"))
+    with tx:
+        record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
+                                  rrd_path=None if args.no_rerun else tx.path / "cosim.rrd")
+        atomic_write_json(tx.path / "cosim.json", record.to_dict())
+    out = tx.out
     print("world frame: lower = lower-face centre displacement, yaw = its yaw change, "
           "F = gripper force on the block (N)")
     for p in record.periods:

@@ -6,9 +6,16 @@ import sys
 from pathlib import Path
 
 from ..errors import EXIT_SOLVER_FAILURE
+from .simulate import add_memory_flag
 
 LOCAL_METHODS = ("uzawa", "newton", "uzawa_jacobi")
 """``fe_contact.model.LOCAL_METHODS``, repeated so that ``--help`` does not import fe_contact."""
+
+
+PAPER_FILES = ("paper_case*", "figures", "report.json", "report.md")
+"""What ``paper`` writes in ``--out`` (``pushplan.studies.paper_run``)."""
+PAPER_ELEMENTS = (20, 20, 5)
+"""The paper's mesh (``pushplan.studies.paper_cases``), for the memory check."""
 
 
 def print_report(report, out) -> None:
@@ -31,10 +38,16 @@ def print_report(report, out) -> None:
 
 def cmd_paper(args) -> int:
     """Exit 0, or 3 when a case's solver fails (the report keeps the finished steps)."""
+    from ..config.budget import check_memory
+    from ..outputs.transaction import output_transaction
     from ..studies.paper_run import run_paper
 
-    report = run_paper(args.out, elements=args.elements, quadrature=args.quadrature,
-                       local_method=args.local_method, docs_dir=args.docs, progress=not args.quiet)
+    check_memory(args.elements or PAPER_ELEMENTS, args.quadrature or 3, override=args.no_memory_check,
+                 what="--elements")
+    tx = output_transaction(args.out, PAPER_FILES)
+    with tx:
+        report = run_paper(tx.path, elements=args.elements, quadrature=args.quadrature,
+                           local_method=args.local_method, docs_dir=args.docs, progress=not args.quiet)
     print_report(report, args.out)
     if not report.completed:
         print(f"pushplan: solver failure in {', '.join(report.failed_cases)}", file=sys.stderr)
@@ -54,4 +67,5 @@ def register(subparsers) -> None:
     p.add_argument("--docs", metavar="DIR",
                    help="also copy the PNGs into DIR (the README's figures: --docs docs/figures)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_paper)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import EXIT_SOLVER_FAILURE
+from .simulate import add_memory_flag
 
 
 def _describe(e: dict) -> str:
@@ -64,7 +65,9 @@ def _world_poses(doc: dict, spec) -> dict:
 def cmd_plan(args) -> int:
     from ..config import load_scenario
     from ..config.plan import parse_plan
-    from ..outputs import atomic_write_json, prepare_output_dir
+    from ..config.budget import check_memory
+    from ..outputs import atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..planning import plan, plan_document, write_recording
 
     scenario, origin = load_scenario(args.scenario), None
@@ -79,25 +82,28 @@ def cmd_plan(args) -> int:
 
         start = measured_start(scenario, spec, read_observations(args.from_observations))
         full_spec, spec = spec, remaining_spec(spec, start)
-    out = prepare_output_dir(args.out)
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
+    tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
 
     def log(text):
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    result = plan(scenario, spec, log=log, after=start.executed if start else ())
-    doc = plan_document(result)
-    if spec.world_origin is not None:
-        doc["world"] = _world_poses(doc, spec)
-    if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
-        doc["from"] = {"observations": args.from_observations, **start.to_dict(), "full_plan": full_spec.to_dict()}
-    if args.verification_error:
-        doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
-    atomic_write_json(out / "plan.json", doc)
-    wrote = [out / "plan.json"]
-    if not args.no_recording:
-        write_recording(result, out / "recording.rrd", scenario.model())
-        wrote.append(out / "recording.rrd")
+    with tx:
+        result = plan(scenario, spec, log=log, after=start.executed if start else ())
+        doc = plan_document(result)
+        if spec.world_origin is not None:
+            doc["world"] = _world_poses(doc, spec)
+        if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
+            doc["from"] = {"observations": args.from_observations, **start.to_dict(),
+                           "full_plan": full_spec.to_dict()}
+        if args.verification_error:
+            doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
+        atomic_write_json(tx.path / "plan.json", doc)
+        wrote = [tx.out / "plan.json"]
+        if not args.no_recording:
+            write_recording(result, tx.path / "recording.rrd", scenario.model())
+            wrote.append(tx.out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")
     state = spec.target_state
     print(f"  target: the lower-face pose {'at rest after the release' if state == 'rest' else 'under load'}")
@@ -139,4 +145,5 @@ def register(subparsers) -> None:
     p.add_argument("--verification-ratio", type=float, default=1.5,
                    help="coarsening ratio of those meshes (default 1.5)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_plan)

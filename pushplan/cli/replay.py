@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from ..errors import EXIT_UNAVAILABLE, InputError
+from .simulate import add_memory_flag
 
 RECORDING_FILE = "recording.rrd"
 COLOUR_FIELDS = ("slip", "slip_path", "pressure")  # pushplan.outputs.recording.FIELDS
@@ -25,46 +26,61 @@ def lower_face_deviation(reference, other):
 
 
 def _source(path: Path):
-    """(commands, original recording or None) of a plan .json or an .rrd."""
-    from ..config import load_commands
+    """(commands, original recording or None, plan document or None) of a plan .json or an .rrd."""
+    from ..config.commands import read_command_file
     from ..outputs.recording_read import read_recording
 
     if path.suffix == ".rrd":
         original = read_recording(path)
-        return list(original.commands), original
+        return list(original.commands), original, None
     if path.suffix == ".json":
         sibling = path.parent / RECORDING_FILE
-        return list(load_commands(path)), read_recording(sibling) if sibling.is_file() else None
+        commands, document = read_command_file(path)
+        return list(commands), read_recording(sibling) if sibling.is_file() else None, document
     raise InputError(f"replay needs a plan .json or a .rrd recording, got {path}")
 
 
 def cmd_replay(args) -> int:
-    import numpy as np
-
     from ..config import load_scenario, parse_scenario
-    from ..outputs import atomic_write_json, prepare_output_dir
+    from ..config.budget import check_memory
+    from ..config.fingerprint import check_plan_scenario
+    from ..outputs import atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..outputs.recording import Recorder
     from ..run import simulate
     from ..run.observers import RecordingFile
     from ..run.simulate import resolved_scenario
-    from .simulate import exit_status
+    from .simulate import RUN_FILES, exit_status
 
     source = Path(args.file)
-    commands, original = _source(source)
+    commands, original, document = _source(source)
     if not commands:
         raise InputError(f"{source} holds no commands")
     if args.scenario is not None:
         scenario = load_scenario(args.scenario)
+        if document is not None:
+            check_plan_scenario(document, scenario.to_dict(), source, force=args.force)
     elif original is not None and original.scenario is not None:
         scenario = parse_scenario(original.scenario, name=original.run_name)
     else:
         raise InputError(f"no scenario stored with {source}: pass --scenario")
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
     model = scenario.model()
-    out = prepare_output_dir(args.out)
-    recorder = Recorder(out / RECORDING_FILE, f"{scenario.name}-replay", model.mesh, field=args.field,
-                        scenario=resolved_scenario(scenario, commands))
-    run = simulate(scenario, out, commands=commands, model=model, recording=False, progress=not args.quiet,
-                   observers=[RecordingFile(recorder)])
+    tx = output_transaction(args.out, (*RUN_FILES, "replay.json"))
+    with tx:
+        recorder = Recorder(tx.path / RECORDING_FILE, f"{scenario.name}-replay", model.mesh, field=args.field,
+                            scenario=resolved_scenario(scenario, commands))
+        run = simulate(scenario, tx.path, commands=commands, model=model, recording=False,
+                       progress=not args.quiet, observers=[RecordingFile(recorder)])
+        report = _compare(source, scenario, commands, run, original, tx.out)
+        atomic_write_json(tx.path / "replay.json", report)
+    return exit_status(run)
+
+
+def _compare(source, scenario, commands, run, original, out) -> dict:
+    """Print the replay and its deviation from the original trajectory; replay.json's content."""
+    import numpy as np
+
     replayed = np.array([s.lower_centroid for s in run.summary.steps], float).reshape(-1, 3)
     report = {"source": str(source), "scenario": scenario.name, "steps_replayed": len(replayed),
               "reference": None, "max_deviation_m": None, "deviation_m": None}
@@ -78,8 +94,7 @@ def cmd_replay(args) -> int:
               f"({dev.max() * 1e6:.4f} um, at compared step {k + 1}; {len(dev)} steps compared)")
     else:
         print("no original trajectory to compare with (no recording.rrd next to the plan)")
-    atomic_write_json(out / "replay.json", report)
-    return exit_status(run)
+    return report
 
 
 def cmd_view(args) -> int:
@@ -106,8 +121,10 @@ def register(subparsers) -> None:
     p.add_argument("file", help="plan .json (its folder's recording.rrd is the reference) or .rrd")
     p.add_argument("--scenario", help="scenario TOML to replay with (default: the one stored in the recording)")
     p.add_argument("--out", required=True, help="output folder (summary.json, fields.npz, recording.rrd, replay.json)")
+    p.add_argument("--force", action="store_true", help="replay a plan made for a scenario other than --scenario")
     p.add_argument("--field", default="slip", choices=COLOUR_FIELDS, help="block colour field")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_replay)
     p = subparsers.add_parser("view", help="open a recording in the rerun viewer")
     p.add_argument("file", help=".rrd recording")

@@ -7,6 +7,17 @@ import sys
 from ..errors import EXIT_SOLVER_FAILURE, InputError
 
 
+RUN_FILES = ("summary.json", "fields.npz", "recording.rrd")
+"""What ``simulate`` writes in ``--out`` (a previous run's files of these names are not kept)."""
+FCLIB_FILES = ("step_*.hdf5",)
+
+
+def add_memory_flag(parser) -> None:
+    """``--no-memory-check``: run even when the estimated memory exceeds what is available."""
+    parser.add_argument("--no-memory-check", action="store_true",
+                        help="run even if the estimated memory of the model exceeds the available memory")
+
+
 def print_steps(steps) -> None:
     """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, N); the
     twist is ``-`` while the lower face sticks (:func:`~pushplan.cli.units.twist_text`)."""
@@ -41,14 +52,23 @@ def exit_status(run) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from ..config import load_commands, load_scenario
-    from ..outputs import prepare_output_dir
+    from contextlib import nullcontext
+
+    from ..config import load_scenario
+    from ..config.budget import check_memory
+    from ..config.commands import read_command_file
+    from ..config.fingerprint import check_plan_scenario
+    from ..outputs.transaction import output_transaction
     from ..run import simulate
 
     scenario = load_scenario(args.scenario)
-    commands = None if args.commands is None else load_commands(args.commands)
+    commands = None
+    if args.commands is not None:
+        commands, document = read_command_file(args.commands)
+        check_plan_scenario(document, scenario.to_dict(), args.commands, force=args.force)
     if not (scenario.commands if commands is None else commands):
         raise InputError(f"nothing to simulate: no load steps in {args.commands or args.scenario}")
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
     model = scenario.model()  # mesh and material checks before anything is written
     observers = []
     if args.observations:
@@ -57,14 +77,16 @@ def cmd_simulate(args) -> int:
 
         observation_format(args.observations)
         observers.append(ObservationsFile(args.observations))
-    out = prepare_output_dir(args.out)
-    fclib_dir = prepare_output_dir(args.export_fclib) if args.export_fclib else None
-    run = simulate(scenario, out, commands=commands, model=model, progress=not args.quiet,
-                   recording=not args.no_recording, export_fclib=fclib_dir, observers=observers)
+    out = output_transaction(args.out, RUN_FILES)
+    fclib = output_transaction(args.export_fclib, FCLIB_FILES) if args.export_fclib else nullcontext()
+    with out, fclib:
+        run = simulate(scenario, out.path, commands=commands, model=model, progress=not args.quiet,
+                       recording=not args.no_recording, export_fclib=fclib.path if args.export_fclib else None,
+                       observers=observers)
     if not args.quiet:
         print_steps(run.summary.steps)
         print_rest(run.summary)
-        print(f"wrote {out / 'summary.json'} and {out / 'fields.npz'}"
+        print(f"wrote {out.out / 'summary.json'} and {out.out / 'fields.npz'}"
               + (f" and {args.observations}" if args.observations else "") + f" ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 
@@ -77,8 +99,11 @@ def register(subparsers) -> None:
     p.add_argument("--observations", metavar="FILE",
                    help="also write the run as an observation file (.csv or .json: commands, lower-face pose, "
                    "force on the gripper; see pushplan.config.observations)")
+    p.add_argument("--force", action="store_true",
+                   help="run the --commands of a plan made for another scenario (block, material, friction, [plan])")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--export-fclib", metavar="DIR",
                    help="write each step's last local contact problem to DIR/step_NNN.hdf5 (FCLIB)")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_simulate)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 from ..errors import EXIT_SOLVER_FAILURE
+from .simulate import add_memory_flag
 
 EXECUTORS = ("process", "dask")
 """``pushplan.config.sweep.EXECUTORS``, repeated so that ``--help`` stays cheap."""
@@ -19,12 +20,31 @@ def print_case(done: int, total: int, row: dict) -> None:
     print(f"[{done:>{len(str(total))}}/{total}] {row['case']}: {row['status']}  {detail}", flush=True)
 
 
+def _check_memory(sweep, args) -> None:
+    """The largest case times the cases run at once must fit in the available memory
+    (not for a remote scheduler: its memory is not ours)."""
+    from ..config.budget import check_memory, estimate_memory
+
+    if args.scheduler is not None or not sweep.cases:
+        return
+
+    def mesh(case):
+        return [int(v) for v in case.columns["elements"].split("x")], int(case.columns["quadrature"])
+
+    biggest = max(sweep.cases, key=lambda c: estimate_memory(*mesh(c)))
+    workers = args.workers if args.workers is not None and args.workers > 0 else sweep.workers
+    elements, quadrature = mesh(biggest)
+    check_memory(elements, quadrature, copies=max(1, min(workers or 1, len(sweep.cases))),
+                 override=args.no_memory_check, what=f"case {biggest.case_id} block.elements")
+
+
 def cmd_sweep(args) -> int:
     """Exit 0 when every case completed, 3 when one failed or raised (the table lists it)."""
     from ..config.sweep import load_sweep
     from ..studies.sweep_run import run_sweep
 
     sweep = load_sweep(args.sweep)
+    _check_memory(sweep, args)
     started = time.perf_counter()
     result = run_sweep(
         sweep, args.out, executor=args.executor, scheduler=args.scheduler, workers=args.workers,
@@ -51,4 +71,5 @@ def register(subparsers) -> None:
     p.add_argument("--figure", help="also write the heat map here, e.g. docs/figures/sweep_twist.png")
     p.add_argument("--rerun-failed", action="store_true", help="also rerun cases that ended in a solver failure")
     p.add_argument("--quiet", action="store_true", help="no per-case lines")
+    add_memory_flag(p)
     p.set_defaults(func=cmd_sweep)

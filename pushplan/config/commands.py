@@ -22,6 +22,9 @@ from .validate import Table
 
 COMMAND_KEYS = ("dx", "dy", "dz", "dtheta_deg")
 RELEASE_KEYS = ("open",)
+MAX_TURN_DEG = 180.0
+"""Largest turn of one step, exclusive: a rotation is known modulo 360 deg, so a turn of
+half a revolution or more in one step would be silently another one (360 deg = none)."""
 
 
 def degrees_exact(angle: float) -> float:
@@ -45,7 +48,8 @@ def command_to_dict(c: Command) -> dict:
 def command_from_dict(item, key: str) -> Command:
     """A command from its dict; missing components are 0; ``key`` names it in messages."""
     t = Table(item, key, COMMAND_KEYS + RELEASE_KEYS)
-    dx, dy, dz, dtheta_deg = (t.number(k, 0.0) for k in COMMAND_KEYS)
+    dx, dy, dz = (t.number(k, 0.0) for k in COMMAND_KEYS[:3])
+    dtheta_deg = t.number("dtheta_deg", 0.0, lo=-MAX_TURN_DEG, hi=MAX_TURN_DEG)
     opened = t.number("open", 0.0, nonneg=True)
     if opened > 1.0:
         raise InputError(f"{t.key('open')} must be <= 1, got {opened!r}")
@@ -77,11 +81,17 @@ def load_commands(path) -> tuple[Command, ...]:
     InputError
         Missing or malformed file, no ``commands`` list, or a bad entry (named).
     """
+    return read_command_file(path)[0]
+
+
+def read_command_file(path) -> tuple[tuple[Command, ...], dict]:
+    """The ``commands`` of a JSON file and the whole document (for the fingerprint
+    of :mod:`pushplan.config.fingerprint`)."""
     path = Path(path)
     data = read_json(path, "commands")
     if not isinstance(data, dict) or "commands" not in data:
         raise InputError(f"{path}: expected an object with a 'commands' list")
     try:
-        return commands_from_list(data["commands"])
+        return commands_from_list(data["commands"]), data
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None

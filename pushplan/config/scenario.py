@@ -50,7 +50,7 @@ from fe_contact import Command, Friction, Gripper, Material, Model, Release, Sol
 from fe_contact.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
-from .commands import commands_to_list
+from .commands import MAX_TURN_DEG, commands_to_list
 from .files import read_toml
 from .validate import Table, count, positive_number
 
@@ -155,7 +155,7 @@ def _load_entry(i: int, entry) -> list[Command]:
     else:
         dx, dy = t.number("dx", 0.0), t.number("dy", 0.0)
     dz = t.number("dz", 0.0)
-    dtheta = math.radians(t.number("dtheta_deg", 0.0))
+    dtheta = math.radians(t.number("dtheta_deg", 0.0, lo=-MAX_TURN_DEG, hi=MAX_TURN_DEG))
     repeat = t.integer("repeat", 1, minimum=1, maximum=MAX_STEPS)
     return [Command(dx, dy, dz, dtheta)] * repeat
 

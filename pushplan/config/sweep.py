@@ -68,7 +68,7 @@ RESULT_COLUMNS = (
 """Table columns of a case's outcome (:func:`pushplan.studies.sweep_tables.result_columns`)."""
 
 _PATH = re.compile(r"^(?P<table>[A-Za-z_]\w*)(?:\[(?P<index>\d+)\])?\.(?P<key>[A-Za-z_]\w*)$")
-_SLUG = re.compile(r"[^A-Za-z0-9._=+-]+")
+_SLUG = re.compile(r"[^A-Za-z0-9._=+-]+")  # ids are ASCII; short_case_id bounds their length
 
 SweepError = InputError  # the name earlier versions exported
 
@@ -185,6 +185,20 @@ def apply_override(data: dict, path: str, value: Any) -> None:
 # ---- cases ------------------------------------------------------------------------------
 
 
+MAX_CASE_ID = 80
+"""Longest case id (a folder name): longer ones keep their first characters and end
+in a hash of the whole id, so that long grid values never make a file name too long."""
+
+
+def short_case_id(case_id: str) -> str:
+    """``case_id``, or its first characters and a 12-digit hash of it when longer than
+    :data:`MAX_CASE_ID`."""
+    if len(case_id) <= MAX_CASE_ID:
+        return case_id
+    digest = hashlib.sha256(case_id.encode()).hexdigest()[:12]
+    return f"{case_id[:MAX_CASE_ID - 13]}~{digest}"
+
+
 def _slug(path: str, value: Any) -> str:
     text = "x".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value) if isinstance(value, list) else (
         f"{value:g}" if isinstance(value, float) else str(value))
@@ -233,7 +247,7 @@ def expand_cases(name: str, run: str, base_data: dict, overrides: dict, grid: di
     cases = []
     for index, values in enumerate(itertools.product(*grid.values())):
         params = dict(zip(grid, values))
-        case_id = f"{index:0{width}d}_" + "_".join(_slug(k, v) for k, v in params.items())
+        case_id = short_case_id(f"{index:0{width}d}_" + "_".join(_slug(k, v) for k, v in params.items()))
         scenario = copy.deepcopy(base_data)
         label = ", ".join(f"{k}={v!r}" for k, v in params.items())
         try:

@@ -245,19 +245,63 @@ def _contact(m, d, bgeom: int, fgeom: int) -> tuple[np.ndarray, np.ndarray, int]
     frames = np.asarray(d.contact.frame[: d.ncon])[mine].reshape(-1, 3, 3)
     fric = np.asarray(d.contact.friction[: d.ncon])[mine]
     dims = np.asarray(d.contact.dim[: d.ncon])[mine]
-    if np.ptp(frames, axis=0).max() > FRAME_TOL or np.ptp(fric, axis=0).max() > FRAME_TOL or np.ptp(dims) > 0:
+    with np.errstate(invalid="ignore", over="ignore"):  # an inf friction is refused by the caller
+        spread = max(np.ptp(frames, axis=0).max(), np.nan_to_num(np.ptp(fric, axis=0)).max())
+    if spread > FRAME_TOL or np.ptp(dims) > 0:
         raise InputError("the block-floor contacts disagree on frame, friction or condim")
     if abs(abs(frames[0][0, 2]) - 1.0) > VERTICAL_TOL:
         raise InputError(f"block-floor contact normal {frames[0][0].tolist()} is not vertical; the FE plane is z = 0")
     return frames[0], fric[0], int(dims[0])
 
 
-def _friction(m, d, bgeom: int, fgeom: int, yaw: float, notes: list) -> tuple[float, float, float, str | None]:
-    """(mu_x, mu_y, angle_deg, pair) from the block-floor contacts at qpos0."""
+def _pair_attribute(source: str, m, index: int) -> str | None:
+    """The ``friction`` text of the ``index``-th ``<pair>`` in the MJCF file ``source``
+    (None: no file, no such element in it, or no attribute)."""
+    import xml.etree.ElementTree as ET
+
+    if not source:
+        return None
+    try:
+        pairs = ET.parse(source).getroot().findall("./contact/pair")
+    except (OSError, ET.ParseError):
+        return None
+    return pairs[index].get("friction") if index < len(pairs) and len(pairs) == m.npair else None
+
+
+def _check_pair_friction(m, index: int, name: str, used, dim: int, source: str) -> None:
+    """The friction MuJoCo compiled for the pair is what the MJCF says, finite and
+    >= 0, and what its contacts use: MuJoCo replaces an unreadable ``friction``
+    (``nan``) by its default 1 and clamps a negative one to 1e-5, silently."""
+    compiled = np.asarray(m.pair_friction[index], float)
+    text = _pair_attribute(source, m, index)
+    label = f"<pair name={name!r}> friction"
+    if text is not None:
+        try:
+            given = [float(v) for v in text.split()]
+        except ValueError:
+            raise InputError(f"{label} {text!r} in {source} is not a list of numbers") from None
+        if not all(math.isfinite(v) and v >= 0.0 for v in given):
+            raise InputError(f"{label} {text!r} in {source} must be finite and >= 0")
+        if not np.array_equal(compiled[:len(given)], given):
+            raise InputError(f"{label} {text!r} in {source}: MuJoCo compiled {compiled.tolist()} instead")
+    if not (np.isfinite(compiled).all() and (compiled >= 0.0).all()):
+        raise InputError(f"{label} compiled by MuJoCo is {compiled.tolist()}: must be finite and >= 0")
+    k = max(dim - 1, 0)
+    if not np.array_equal(np.asarray(used, float)[:k], compiled[:k]):
+        raise InputError(f"{label} {compiled[:k].tolist()} is used by MuJoCo's contacts as {list(used[:k])}")
+
+
+def _friction(m, d, bgeom: int, fgeom: int, yaw: float, notes: list,
+              source: str = "") -> tuple[float, float, float, str | None]:
+    """(mu_x, mu_y, angle_deg, pair) from the block-floor contacts at qpos0; the
+    pair's friction checked against the MJCF ``source`` file (see
+    :func:`_check_pair_friction`)."""
     mj = mujoco_module()
     frame, f, dim = _contact(m, d, bgeom, fgeom)
     pairs = [i for i in range(m.npair) if sorted((m.pair_geom1[i], m.pair_geom2[i])) == sorted((bgeom, fgeom))]
     pair = object_name(m, mj.mjtObj.mjOBJ_PAIR, pairs[0]) if pairs else None
+    if pairs:
+        _check_pair_friction(m, pairs[0], pair, f, dim, source)
     if pair is None:
         notes.append("no <pair> for block and floor: friction is MuJoCo's isotropic mix of the geom frictions")
     if m.opt.cone != mj.mjtCone.mjCONE_ELLIPTIC:
@@ -358,7 +402,7 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
     mj.mj_forward(m, d)  # kinematics; the contacts are found in _friction (resting-gap tolerance)
     size, yaw, lower = _box_on_plane(m, d, bgeom, fgeom, floor)
     notes: list[str] = []
-    mu_x, mu_y, angle, pair = _friction(m, d, bgeom, fgeom, yaw, notes)
+    mu_x, mu_y, angle, pair = _friction(m, d, bgeom, fgeom, yaw, notes, path)
     from_mjcf = {"block.size": f"box geom {object_name(m, mj.mjtObj.mjOBJ_GEOM, bgeom)!r} (2 x size)", **FROM_MJCF}
     if _numeric(m, NUMERIC_FRICTION_ANGLE) is not None:
         from_mjcf["friction.angle_deg"] += f", turned by <numeric name='{NUMERIC_FRICTION_ANGLE}'>"

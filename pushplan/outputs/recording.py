@@ -73,6 +73,7 @@ parser) stays cheap.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -89,6 +90,10 @@ from . import recording_scene as scene
 from .atomic import commit_temporary, reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
+FULL_DISK_BYTES = 2**20
+"""Free space below which a failed write of the recording is taken for a full disk."""
+FLUSH_TIMEOUT_S = 60.0
+"""A flush of one step takes milliseconds; rerun's file writer can stall on a full disk."""
 APPLICATION_ID = "pushplan"
 FIELDS = {  # name: (description, display unit, factor SI -> display unit)
     "slip": ("accumulated slip (norm of the total tangential displacement)", "um", 1e6),
@@ -265,7 +270,7 @@ class Recorder:
         for name, traj in (("upper_face", self._upper_traj), ("lower_face", self._lower_traj)):
             self.stream.log(f"world/{name}", rr.LineStrips3D([np.array(traj)]), rr.Points3D([traj[-1]]))
         self.stream.log("world/gripper", scene.gripper(rr, self.mesh.size, self._upper_ref, 0.0))
-        self.stream.flush()
+        self._flush()
 
     def log_step(self, report: StepReport, summary=None) -> None:
         """Log one load step.
@@ -289,7 +294,7 @@ class Recorder:
             self.stream.log("log", rr.TextLog(
                 f"step {report.step_index} failed ({report.status.value}): {report.message}",
                 level=rr.TextLogLevel.ERROR))
-            self.stream.flush()
+            self._flush()
             return
         if summary is None or summary.step != report.step_index:
             raise ValueError(f"log_step needs the StepSummary of step {report.step_index}")
@@ -301,7 +306,7 @@ class Recorder:
         self._log_trajectories(report)
         self._log_contact(report, deformed)
         self._log_numbers(report, summary)
-        self.stream.flush()
+        self._flush()
 
     def _log_block(self, deformed: np.ndarray) -> None:
         """Deformed block surface (its colours are logged at :meth:`close`, on one scale)."""
@@ -431,13 +436,24 @@ class Recorder:
         self.stream.log(f"plan/{name}", self._rr.LineStrips3D([xyz], colors=[colour], labels=[name]),
                         self._rr.Points3D(xyz, colors=[colour]))
 
+    def _flush(self) -> None:
+        """Flush the stream; a full disk is the OSError it is (rerun reports it as a
+        RuntimeError of its file-writer thread)."""
+        try:
+            self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:
+            st = os.statvfs(self._tmp.parent)
+            if st.f_bavail * st.f_frsize >= FULL_DISK_BYTES:
+                raise  # not a full disk: a bug or a rerun failure, with its traceback
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path)) from exc
+
     # -- closing -----------------------------------------------------------------------
     def close(self) -> Path:
         """Flush, disconnect and move the finished file into place; returns its path."""
         if not self._closed:
             self._closed = True
             self._log_fixed_scales()
-            self.stream.flush()
+            self._flush()
             self.stream.disconnect()
             commit_temporary(self._tmp, self.path)
         return self.path

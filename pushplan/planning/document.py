@@ -10,6 +10,7 @@ import numpy as np
 from fe_contact import Model
 
 from ..config.commands import commands_to_list, planar_commands
+from ..config.fingerprint import scenario_fingerprint
 from ..config.plan import PlanSpec
 from .result import PlanResult
 from .target import pose_error
@@ -49,6 +50,7 @@ def plan_document(result: PlanResult) -> dict:
     spec, sol, state = result.spec, result.solution, result.spec.target_state
     return {
         "scenario": result.scenario.to_dict(),
+        "scenario_fingerprint": scenario_fingerprint(result.scenario.to_dict()),
         "plan": spec.to_dict(),
         "status": result.status,
         "message": result.message,

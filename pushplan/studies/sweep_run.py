@@ -7,8 +7,10 @@ Outputs in ``DIR``:
     The resolved sweep: base, overrides, and every case's id, parameters and key.
 ``cases/<id>/``
     The runner's files (``summary.json``, ``fields.npz`` for ``simulate``) and
-    ``case.json`` (status, error, key), written last.  A rerun skips the cases
-    whose ``case.json`` holds the same key and a finished status.
+    ``case.json`` (status, error, key), the folder swapped in whole
+    (:mod:`pushplan.outputs.transaction`): a killed sweep leaves each case folder as it
+    was or complete.  A rerun skips the cases whose ``case.json`` holds the same key
+    and a finished status.  The sweep folder is locked while a sweep runs in it.
 ``results.csv`` (and ``results.parquet``), the heat map
     :mod:`pushplan.studies.sweep_tables`.
 
@@ -16,7 +18,8 @@ Workers compute in a scratch folder and send the files back, so a remote Dask
 cluster needs no shared file system; the client writes every output.  Each local
 worker process runs one BLAS / OpenMP thread and one dense-kernel thread
 (:data:`THREAD_VARIABLES`, unless the caller's environment sets them); the
-caller's own environment is left as it is.
+caller's own environment is left as it is.  Pool workers die with the sweep, a dead
+worker's cases run again, Ctrl-C stops the workers (:mod:`.sweep_pool`).
 """
 
 from __future__ import annotations
@@ -24,11 +27,9 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
-import multiprocessing
 import os
 import tempfile
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -38,7 +39,10 @@ from ..config.sweep import EXECUTORS, HEATMAP_SUFFIXES, Sweep
 from ..config.validate import choice, integer
 from ..errors import InputError
 from ..outputs.atomic import atomic_write_bytes, atomic_write_json, prepare_output_dir
+from ..outputs.transaction import OutputLock, output_transaction, recover_siblings, remove_temporaries
 from ..run import RunStatus, RunSummary, StepSummary
+from .sweep_pool import SCHEDULER_TIMEOUT_S, connect, run_dask, run_local, worker_environment
+from .sweep_pool import THREAD_VARIABLES, single_threaded  # noqa: F401 - importable from here as before
 from .sweep_tables import case_row, heatmap_figure, write_tables
 
 CASE_RUNNERS = {"simulate": "pushplan.studies.sweep_run:simulate_case",
@@ -50,13 +54,6 @@ the existing folder ``out_dir``."""
 CASE_FILE = "case.json"
 FINISHED = ("completed", "failed")
 """Statuses a rerun skips: a solver failure is a deterministic outcome, an exception may not be."""
-SCHEDULER_TIMEOUT_S = 10
-THREAD_VARIABLES = {"OPENBLAS_NUM_THREADS": "blas", "OMP_NUM_THREADS": "openmp", "MKL_NUM_THREADS": None,
-                    "FE_CONTACT_DENSE_THREADS": None}
-"""Environment variables set to 1 in the case processes -> the threadpoolctl ``user_api``
-also limited to one thread there (libraries loaded before the variable was set)."""
-
-
 @dataclass
 class SweepResult:
     """Rows of ``results.csv`` (in case order) and which cases ran or were skipped."""
@@ -161,15 +158,10 @@ def _read_json(path: Path) -> dict | None:
         return None
 
 
-def _store(case_dir: Path, result: dict) -> tuple[dict, dict | None]:
-    """Write a case's files (``case.json`` removed first); returns its status record and summary."""
-    (case_dir / CASE_FILE).unlink(missing_ok=True)
-    for rel, data in result["files"].items():
-        target = case_dir / rel
-        target.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(target, data)
-    if result.get("traceback"):
-        atomic_write_bytes(case_dir / "error.txt", result["traceback"].encode())
+def _store(case_dir: Path, result: dict, record: dict) -> tuple[dict, dict | None]:
+    """Write a case's folder as one transaction (files, ``error.txt``, ``case.json``
+    last): a killed sweep leaves the previous complete folder or the new one.
+    Returns the ``case.json`` record and the summary."""
     summary = None
     if "summary.json" in result["files"]:
         with contextlib.suppress(ValueError):  # a corrupt summary is reported below
@@ -183,56 +175,19 @@ def _store(case_dir: Path, result: dict) -> tuple[dict, dict | None]:
     else:
         failure = summary.get("failure") or {}
         status, error = "failed", failure.get("message", f"run ended with status {summary.get('status')!r}")
-    return {"status": status, "error": error}, summary
+    record = {**record, "status": status, "error": error}
+    with output_transaction(case_dir, owned=None, lock=False) as tx:  # the sweep holds the lock
+        for rel, data in result["files"].items():
+            target = tx.path / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(target, data)
+        if result.get("traceback"):
+            atomic_write_bytes(tx.path / "error.txt", result["traceback"].encode())
+        atomic_write_json(tx.path / CASE_FILE, record)
+    return record, summary
 
 
 # ---- execution --------------------------------------------------------------
-
-
-def worker_environment() -> dict:
-    """The :data:`THREAD_VARIABLES` the caller's environment does not set, each ``"1"``."""
-    return {v: "1" for v in THREAD_VARIABLES if v not in os.environ}
-
-
-def single_threaded(environment: dict) -> None:
-    """Pool initializer, in the worker process: set ``environment`` there and limit
-    the thread pools its libraries already loaded (numpy is imported before this runs)."""
-    from threadpoolctl import threadpool_limits
-
-    os.environ.update(environment)
-    limits = {THREAD_VARIABLES[v]: 1 for v in environment if THREAD_VARIABLES.get(v)}
-    if limits:
-        threadpool_limits(limits=limits)
-
-
-def _executor_error(exc: BaseException) -> dict:
-    return {"files": {}, "error": " ".join(f"{type(exc).__name__}: {exc}".split()), "traceback": None}
-
-
-def _run_local(tasks: list[dict], workers: int, on_result: Callable) -> None:
-    # spawn: safe with the threads of fe_contact and of an in-process Dask cluster
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=single_threaded,
-                             initargs=(worker_environment(),)) as pool:
-        futures = {pool.submit(run_case, t): t for t in tasks}
-        for fut in as_completed(futures):
-            try:
-                result = fut.result()
-            except Exception as exc:  # a worker died (BrokenProcessPool, MemoryError): record, go on
-                result = _executor_error(exc)
-            on_result(futures[fut], result)
-
-
-def _run_dask(tasks: list[dict], client, on_result: Callable) -> None:
-    from dask.distributed import as_completed as dask_completed
-
-    futures = {client.submit(run_case, t, pure=False): t for t in tasks}
-    for fut in dask_completed(list(futures)):
-        try:
-            result = fut.result()
-        except Exception as exc:  # KilledWorker, lost connection: record, go on
-            result = _executor_error(exc)
-        on_result(futures[fut], result)
 
 
 def _dask_client(stack: contextlib.ExitStack, scheduler: str | None, workers: int, cluster_options: dict):
@@ -247,11 +202,7 @@ def _dask_client(stack: contextlib.ExitStack, scheduler: str | None, workers: in
             options.setdefault("env", worker_environment())
         cluster = stack.enter_context(LocalCluster(**options))
         return stack.enter_context(Client(cluster))
-    try:
-        return stack.enter_context(Client(scheduler, timeout=SCHEDULER_TIMEOUT_S))
-    except (OSError, ValueError, TypeError) as exc:  # what Client raises for a bad or unreachable address
-        message = " ".join(str(exc).split())
-        raise InputError(f"--scheduler {scheduler!r}: cannot connect ({type(exc).__name__}: {message})") from None
+    return stack.enter_context(connect(scheduler, SCHEDULER_TIMEOUT_S))
 
 
 # ---- the sweep ------------------------------------------------------------------
@@ -298,16 +249,13 @@ class _Collector:
                 self.rows[case.index] = case_row(case, record, summary, f"cases/{case.case_id}")
                 self.result.skipped.append(case.case_id)
             else:
-                case_dir.mkdir(exist_ok=True)
                 self.todo.append({"index": case.index, "run": self.sweep.run, "scenario": case.scenario})
 
     def on_result(self, task: dict, outcome: dict) -> None:
         """Store a case's files, then its ``case.json``; its row."""
         case = self.sweep.cases[task["index"]]
         case_dir = self.cases_dir / case.case_id
-        record, summary = _store(case_dir, outcome)
-        record = {"case": case.case_id, "key": case.key, "params": case.params, **record}
-        atomic_write_json(case_dir / CASE_FILE, record)
+        record, summary = _store(case_dir, outcome, {"case": case.case_id, "key": case.key, "params": case.params})
         self.rows[case.index] = case_row(case, record, summary, f"cases/{case.case_id}")
         self.result.ran.append(case.case_id)
         if self.progress is not None:
@@ -350,21 +298,40 @@ def run_sweep(sweep: Sweep, out_dir, executor: str | None = None, scheduler: str
     executor, workers, figure = _options(sweep, executor, scheduler, workers, figure)
     with contextlib.ExitStack() as stack:
         client = _dask_client(stack, scheduler, workers, cluster_options or {}) if executor == "dask" else None
-        out = prepare_output_dir(out_dir)
-        (out / "cases").mkdir(exist_ok=True)
-        atomic_write_json(out / "sweep.json", _sweep_json(sweep))
+        out = _locked_output(stack, out_dir, sweep)
         state = _Collector(sweep, out / "cases", progress)
         state.scan(rerun_failed)
         if state.todo and client is not None:
-            _run_dask(state.todo, client, state.on_result)
+            run_dask(run_case, state.todo, client, state.on_result)
         elif state.todo:
-            _run_local(state.todo, workers, state.on_result)
-    result = state.result
-    result.rows = [state.rows[i] for i in sorted(state.rows)]
-    result.outputs["tables"] = write_tables(out, result.rows)
-    if sweep.heatmap is not None:
-        data = heatmap_figure(result.rows, sweep.heatmap, title=sweep.description or sweep.name)
-        result.outputs["heatmap"] = [atomic_write_bytes(out / sweep.heatmap.file, data)]
-        if figure is not None:
-            result.outputs["heatmap"].append(atomic_write_bytes(figure, data))
+            run_local(run_case, state.todo, workers, state.on_result)
+        result = state.result
+        result.rows = [state.rows[i] for i in sorted(state.rows)]
+        result.outputs["tables"] = write_tables(out, result.rows)
+        if sweep.heatmap is not None:
+            data = heatmap_figure(result.rows, sweep.heatmap, title=sweep.description or sweep.name)
+            result.outputs["heatmap"] = [atomic_write_bytes(out / sweep.heatmap.file, data)]
+            if figure is not None:
+                result.outputs["heatmap"].append(atomic_write_bytes(figure, data))
     return result
+
+
+def _locked_output(stack: contextlib.ExitStack, out_dir, sweep: Sweep) -> Path:
+    """The sweep folder, locked for the run (a second sweep into it refuses), with the
+    leftovers of killed runs repaired or removed; ``sweep.json`` written."""
+    out = Path(os.path.abspath(out_dir))
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output path exists and is not a folder: {out}")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create output folder {out}: {exc.strerror}") from None
+    lock = OutputLock(out)
+    lock.acquire()
+    stack.callback(lock.release)
+    out = prepare_output_dir(out)
+    (out / "cases").mkdir(exist_ok=True)
+    recover_siblings(out / "cases")
+    remove_temporaries(out)
+    atomic_write_json(out / "sweep.json", _sweep_json(sweep))
+    return out
