@@ -1,4 +1,4 @@
-"""The two outcomes a user is told about without a traceback, and their exit statuses.
+"""The outcomes a user is told about without a traceback, and their exit statuses.
 
 ``InputError``   bad input (a file, a key, a value): one line naming it, exit 2,
                  nothing written.
@@ -7,6 +7,8 @@
 ``OutputFailure`` the output could not be written (full disk, quota, read-only file
                  system): one line, exit 1, the previous output left as it was.
 Interrupted (SIGINT): exit 130; the output folder is left as it was.
+``InputWarning``  valid input that is probably in the wrong unit: one warning line, the
+                 run goes on.  ``view`` without a display or viewer: exit 4.
 
 Anything else raised inside ``pushplan`` is a bug: the CLI lets it through with its
 traceback (exit 1).  ``InputError`` is a ``ValueError`` so that library callers can
@@ -35,5 +37,7 @@ class SolverFailure(RuntimeError):
 class InputWarning(UserWarning):
     """Input that is valid but probably not what was meant (a modulus in MPa given as Pa);
     the CLI prints it as one ``pushplan: warning:`` line and goes on."""
+
+
 class OutputFailure(OSError):
     """The output could not be written (full disk, quota, read-only file system)."""
