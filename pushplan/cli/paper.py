@@ -24,7 +24,7 @@ def print_report(report, out) -> None:
         if case.steps:
             s = case.steps[-1]
             print(f"{case.name}: {case.run.summary.status.value}, {case.run.summary.elapsed_s:.1f} s, "
-                  f"max slip {s.summary.max_slip * 1e3:.4f} mm, twist {s.summary.twist_deg:.3f}°, "
+                  f"max slip {s.summary.max_slip * 1e3:.4f} mm, twist {round(s.summary.twist_deg, 3) + 0.0:.3f}°, "
                   f"lower-face direction {s.lower_direction_deg:.2f}°")
     for claim in report.claims or ():
         if claim.holds:
