@@ -38,6 +38,7 @@ from .model import (
 )
 from .release import Release, ReleaseSchedule, run_release
 from .step import run, step
+from .warmup import warm_up
 from ._threads import limit_blas_threads
 
 limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact._threads)
@@ -67,4 +68,5 @@ __all__ = [
     "run_release",
     "solve_local",
     "step",
+    "warm_up",
 ]

@@ -79,3 +79,22 @@ def test_unset_dense_threads_are_the_cpus_other_work_leaves_idle(monkeypatch, lo
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
     assert _threads.dense_threads() == expected
+
+
+def test_warm_up_loads_every_compiled_kernel():
+    """After ``warm_up`` no numba kernel of fe_contact is left to load at a first call
+    (a co-simulation's first period would otherwise pay for it); in a fresh process,
+    where nothing else has loaded them."""
+    import subprocess
+    import sys
+
+    code = ("import fe_contact\n"
+            "from fe_contact import alart_curnier, cholesky, friction, uzawa\n"
+            "ks = [getattr(m, n) for m in (alart_curnier, cholesky, friction, uzawa) for n in dir(m)\n"
+            "      if type(getattr(m, n)).__name__ == 'CPUDispatcher']\n"
+            "before = [k.__name__ for k in ks if k.signatures]\n"
+            "fe_contact.warm_up()\n"
+            "print(len(ks), before, [k.__name__ for k in ks if not k.signatures])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split(None, 1)
+    assert int(out[0]) >= 4
+    assert out[1].strip() == "[] []"  # none loaded at import, every one after warm_up

@@ -118,7 +118,7 @@ def cmd_cosim(args) -> int:
               f"F {force}  FE {rep.wall_time * 1e3:6.1f} ms")
     print(f"co-simulation rate: {record.rate_periods_per_s:.2f} control periods/s "
           f"({len(record.periods)} periods, {record.steps_per_period} MuJoCo steps each, "
-          f"{record.wall_s:.2f} s)")
+          f"{record.wall_s:.2f} s; start-up {record.startup_s:.2f} s loading the compiled kernels)")
     print(f"wrote {out / 'cosim.json'}" + ("" if args.no_rerun else f" and {out / 'cosim.rrd'}"))
     if record.status is not RunStatus.COMPLETED:
         print(f"pushplan: solver failure at period {len(record.periods)}", file=sys.stderr)
