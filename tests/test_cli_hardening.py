@@ -15,38 +15,11 @@ import numpy as np
 import pytest
 
 from pushplan.cli import EXIT_BAD_INPUT, EXIT_SOLVER_FAILURE, main
+from tiny_inputs import BASE, SWEEP  # the tiny scenario and sweep shared by the CLI tests
 
 EQUILIBRIUM_TOL = 1e-8  # issue: equilibrium to 1e-8 in every step
 STEADY_RTOL = 1e-4  # steady sliding: lower-face increment = push increment, dissipation = N |M du|
 WALL_TIME_KEYS = {"elapsed_s", "wall_time_s"}
-
-BASE = """
-name = "hardening"
-[block]
-size = [0.02, 0.02, 0.01]
-elements = [2, 2, 1]
-quadrature = 2
-[material]
-young = 210e9
-poisson = 0.3
-[friction]
-mu_x = 0.3
-mu_y = 0.1
-[[load]]
-dz = -1e-4
-[[load]]
-distance = 0.32e-3
-direction_deg = 45.0
-[solver]
-local_method = "newton"
-"""
-
-SWEEP = """
-base = "base.toml"
-workers = 1
-[grid]
-"friction.mu_y" = [0.1, 0.2]
-"""
 
 
 def edit(text, old, new):
@@ -83,13 +56,13 @@ BAD_INPUTS = {
     "mu_y inf": scenario_case("mu_y = 0.1", "mu_y = inf", "friction.mu_y", "inf"),
     "mu_x bool": scenario_case("mu_x = 0.3", "mu_x = true", "friction.mu_x", "True"),
     "unknown block key": scenario_case("quadrature = 2", "quadrature = 2\ncolour = 1", "block.colour"),
-    "unknown top key": scenario_case('name = "hardening"', 'name = "hardening"\ngravity = 9.81', "gravity"),
+    "unknown top key": scenario_case('name = "tiny"', 'name = "tiny"\ngravity = 9.81', "gravity"),
     "unknown load key": scenario_case("direction_deg = 45.0", "direction_deg = 45.0\nspeed = 1.0", "load[1].speed"),
     "unknown table": scenario_case("[block]", "[blocks]", "blocks"),
     "missing material": scenario_case("[material]\nyoung = 210e9\npoisson = 0.3\n", "", "[material]"),
     "missing young": scenario_case("young = 210e9\n", "", "material.young"),
-    "name not string": scenario_case('name = "hardening"', "name = 5", "name", "5"),
-    "description not string": scenario_case('name = "hardening"', 'name = "h"\ndescription = 7', "description", "7"),
+    "name not string": scenario_case('name = "tiny"', "name = 5", "name", "5"),
+    "description not string": scenario_case('name = "tiny"', 'name = "h"\ndescription = 7', "description", "7"),
     "load not array": scenario_case("[[load]]\ndz = -1e-4\n[[load]]\ndistance = 0.32e-3\ndirection_deg = 45.0",
                                     "[load]\ndz = -1e-4", "load", "{'dz': -0.0001}"),
     "dx with distance": scenario_case("distance = 0.32e-3", "distance = 0.32e-3\ndx = 1e-4", "load[1]", "dx"),

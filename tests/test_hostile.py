@@ -16,34 +16,9 @@ import numpy as np
 import pytest
 
 from pushplan.cli import EXIT_BAD_INPUT, main
+from tiny_inputs import BASE, SWEEP  # the tiny scenario and sweep shared by the CLI tests
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = """
-name = "hostile"
-[block]
-size = [0.02, 0.02, 0.01]
-elements = [2, 2, 1]
-quadrature = 2
-[material]
-young = 210e9
-poisson = 0.3
-[friction]
-mu_x = 0.3
-mu_y = 0.1
-[[load]]
-dz = -1e-4
-[[load]]
-distance = 0.32e-3
-direction_deg = 45.0
-[solver]
-local_method = "newton"
-"""
-SWEEP = """
-base = "base.toml"
-workers = 1
-[grid]
-"friction.mu_y" = [0.1, 0.2]
-"""
 HUGE_MEMORY = "elements = [100, 100, 4]"  # passes validation, ~33 GB by the estimate
 
 
@@ -97,7 +72,7 @@ CASES = {
     "repeat huge": sc("direction_deg = 45.0", "direction_deg = 45.0\nrepeat = 100000000", "load[1].repeat"),
     "local_method unknown": sc('local_method = "newton"', 'local_method = "magic"', "solver.local_method"),
     "newton_tol negative": sc('local_method = "newton"', "newton_tol = -1.0", "solver.newton_tol"),
-    "name not string": sc('name = "hostile"', "name = 5", "name"),
+    "name not string": sc('name = "tiny"', "name = 5", "name"),
     "no load steps": sc("[[load]]\ndz = -1e-4\n[[load]]\ndistance = 0.32e-3\ndirection_deg = 45.0", "",
                         "nothing to simulate", "base.toml"),
     # -- scenario files

@@ -229,7 +229,7 @@ def test_thread_variables_are_set_in_the_workers_only(tmp_path, monkeypatch):
 
     from threadpoolctl import threadpool_info
 
-    from pushplan.studies.sweep_run import THREAD_VARIABLES, single_threaded, worker_environment
+    from pushplan.studies.sweep_pool import THREAD_VARIABLES, single_threaded, worker_environment
 
     for var in THREAD_VARIABLES:
         monkeypatch.delenv(var, raising=False)

@@ -42,7 +42,6 @@ from ..outputs.atomic import atomic_write_bytes, atomic_write_json, prepare_outp
 from ..outputs.transaction import OutputLock, output_transaction, recover_siblings, remove_temporaries
 from ..run import RunStatus, RunSummary, StepSummary
 from .sweep_pool import SCHEDULER_TIMEOUT_S, connect, run_dask, run_local, worker_environment
-from .sweep_pool import THREAD_VARIABLES, single_threaded  # noqa: F401 - importable from here as before
 from .sweep_tables import case_row, heatmap_figure, write_tables
 
 CASE_RUNNERS = {"simulate": "pushplan.studies.sweep_run:simulate_case",
