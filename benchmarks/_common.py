@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from fe_contact._threads import dense_threads
+from fe_contact.linalg.threads import dense_threads
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

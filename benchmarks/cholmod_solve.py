@@ -21,8 +21,8 @@ from threadpoolctl import threadpool_limits
 
 from _common import write_results
 from fe_contact import Friction, Material, Model, SolverOptions, block_mesh
-from fe_contact.cholesky import factorise
-from fe_contact.elasticity import internal_force_and_tangent
+from fe_contact.linalg.cholesky import factorise
+from fe_contact.fem.elasticity import internal_force_and_tangent
 
 
 def median_time(fn, repeat: int) -> float:

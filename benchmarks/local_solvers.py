@@ -1,7 +1,7 @@
 """Iterations, time and residual of every local contact solver (``solve_local``) on
 the three FCLIB problems of ``tests/data/fclib``, a random 441-contact anisotropic
 problem and a real FE flexibility problem: the first local problem of load step 2
-of the paper's case 3 (sect. 9), captured from ``fe_contact.step``.
+of the paper's case 3 (sect. 9), captured from ``fe_contact.stepping.step``.
 
     python benchmarks/local_solvers.py [--elements 20 20 5] [--uzawa-max-iter N]
 
@@ -19,8 +19,8 @@ import numpy as np
 
 from _common import write_results
 from fe_contact import initial_state, step
-from fe_contact.fclib import read_local_problem
-from fe_contact.local_solver import METHODS, solve_local
+from fe_contact.io.fclib import read_local_problem
+from fe_contact.contact.local_solver import METHODS, solve_local
 from pushplan.config import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +49,7 @@ def fe_step2_problem(elements) -> tuple[dict, dict]:
     """``(W, q, mu_x, mu_y, r0, tol)`` of the first ``solve_local`` call of step 2, and facts.
 
     Step 1 (compression 0.1 mm) is solved with the Newton local method; then
-    ``fe_contact.newton.solve_local`` is wrapped to record its arguments.
+    ``fe_contact.stepping.newton.solve_local`` is wrapped to record its arguments.
     """
     scenario = load_scenario(ROOT / "scenarios" / "paper_case3.toml")
     model = scenario.model(elements=tuple(elements) if elements else None)
@@ -57,7 +57,7 @@ def fe_step2_problem(elements) -> tuple[dict, dict]:
     state, rep = step(model, initial_state(model), scenario.commands[0])
     if not rep.converged:
         raise RuntimeError(f"step 1 did not converge: {rep.message}")
-    module = sys.modules["fe_contact.newton"]
+    module = sys.modules["fe_contact.stepping.newton"]
     original = module.solve_local
     calls = []
 
@@ -76,7 +76,7 @@ def fe_step2_problem(elements) -> tuple[dict, dict]:
         "quadrature": model.quadrature, "contacts": model.n_contacts,
         "step2_converged": rep2.converged, "step2_local_calls": len(calls),
         "captured_call": 0, "build_time_s": time.perf_counter() - t0,
-        "scaling": "W and q divided by the mean diagonal of W, as fe_contact.step does",
+        "scaling": "W and q divided by the mean diagonal of W, as fe_contact.stepping.step does",
     }
     return calls[0], facts
 

@@ -18,8 +18,8 @@ import numpy as np
 
 from _common import write_results
 from fe_contact import SolverOptions, initial_state, step
-from fe_contact.elasticity import internal_force_and_tangent
-from fe_contact.cholesky import factorise
+from fe_contact.fem.elasticity import internal_force_and_tangent
+from fe_contact.linalg.cholesky import factorise
 from pushplan.config import load_scenario
 from pushplan.resources import scenario_path
 

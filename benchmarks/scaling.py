@@ -28,7 +28,7 @@ CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh, initial_state, step
-from fe_contact.local_solver import solve_local
+from fe_contact.contact.local_solver import solve_local
 n = int(sys.argv[1])
 model = Model(block_mesh((0.02, 0.02, 0.01), (n, n, max(1, n // 2))), Material(210e9, 0.3),
               Friction(0.3, 0.05, 0.0), quadrature=2, options=SolverOptions())
@@ -52,8 +52,8 @@ out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 # plain nested dissection of the same matrix (no contact ordering, no W): the cost
 # of a sparse direct solve of the block itself, contact or not (after the peak
 # memory is read, the state's factors dropped first)
-from fe_contact.cholesky import supernodal_structure
-from fe_contact.mesh import nested_dissection_parts
+from fe_contact.linalg.cholesky import supernodal_structure
+from fe_contact.fem.mesh import nested_dissection_parts
 state = None
 free = np.zeros(model.mesh.n_dofs, dtype=bool)
 free[model.free_dofs] = True

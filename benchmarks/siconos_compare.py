@@ -6,7 +6,7 @@ Problems (all solved from ``r = 0`` to the natural-map residual ``TOL``):
 * the shared FCLIB LMGC problem (``tests/data/fclib``) and any FCLIB files given;
 * the paper-mesh step problems: the first local problem of each push step of
   paper case 3 (20 x 20 x 5 hex8, 3^3 Gauss points, 441 contacts), captured
-  from ``fe_contact.step``;
+  from ``fe_contact.stepping.step``;
 * the large-friction problems of issue 21: isotropic ``mu`` in {4, 10, 100,
   1000}, the first local problem of the press and of the bonded step (press,
   then a 0.1 um push) of the 10 x 10 x 4 block.
@@ -38,8 +38,8 @@ import numpy as np
 
 from _common import write_results
 from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh, initial_state, step
-from fe_contact.fclib import read_local_problem
-from fe_contact.local_solver import natural_map_residual, solve_local
+from fe_contact.io.fclib import read_local_problem
+from fe_contact.contact.local_solver import natural_map_residual, solve_local
 
 ROOT = Path(__file__).resolve().parents[1]
 LMGC = ROOT / "tests" / "data" / "fclib" / "LMGC_100_PR_PerioBox-i00361-60-03000.hdf5"
@@ -111,7 +111,7 @@ def problems(files, elements) -> dict:
 
 
 def isotropic_form(p) -> tuple:
-    """``(D (n, 3), W', q', mu')`` of :mod:`fe_contact.local_solver`'s per-contact scaling."""
+    """``(D (n, 3), W', q', mu')`` of :mod:`fe_contact.contact.local_solver`'s per-contact scaling."""
     n = p["q"].shape[0]
     mx, my = np.broadcast_to(p["mu_x"], (n,)).astype(float), np.broadcast_to(p["mu_y"], (n,)).astype(float)
     mu = np.maximum(mx, my)

@@ -12,17 +12,29 @@ Public API::
 
 Beyond the paper: ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
 ``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper, and
-:mod:`fe_contact.release` lets go of the block (``lift`` or ``open``).
+:mod:`fe_contact.stepping.release` lets go of the block (``lift`` or ``open``).
+
+Layers, lowest first (a subpackage imports only from those before it)::
+
+    linalg/    the multifrontal Cholesky factor, BLAS thread policy
+    fem/       hex8 element and quadrature, mesh, assembly, St Venant-Kirchhoff
+               elasticity (eq. 1-5), loads (self-weight, eq. 3; gripper springs)
+    contact/   elliptic friction cone and its projection (eq. 13-45), local
+               solvers on the contact nodes (Newton / Alart-Curnier, Uzawa)
+    io/        FCLIB HDF5 interchange of local problems
+    stepping/  Model / State, predictor, Newton loop with the flexibility
+               matrix (sect. 8, Box 3/4), measurement, compliant gripper,
+               release, ``step``
 
 This package knows nothing about planning, robots, MuJoCo or rerun.
 """
 
-from .elasticity import Material
-from .friction import project_elliptic_cone
-from .loads import GRAVITY, Gripper
-from .local_solver import solve_local
-from .mesh import BlockMesh, block_mesh
-from .model import (
+from .fem.elasticity import Material
+from .contact.friction import project_elliptic_cone
+from .fem.loads import GRAVITY, Gripper
+from .contact.local_solver import solve_local
+from .fem.mesh import BlockMesh, block_mesh
+from .stepping.model import (
     Command,
     Friction,
     IterLog,
@@ -36,12 +48,12 @@ from .model import (
     build_model,
     initial_state,
 )
-from .release import Release, ReleaseSchedule, run_release
-from .step import run, step
-from .warmup import warm_up
-from ._threads import limit_blas_threads
+from .stepping.release import Release, ReleaseSchedule, run_release
+from .stepping.step import run, step
+from .stepping.warmup import warm_up
+from .linalg.threads import limit_blas_threads
 
-limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact._threads)
+limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact.linalg.threads)
 
 __all__ = [
     "BlockMesh",

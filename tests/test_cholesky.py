@@ -1,4 +1,4 @@
-"""Multifrontal Cholesky of the free-dof stiffness (fe_contact.cholesky, issue 8).
+"""Multifrontal Cholesky of the free-dof stiffness (fe_contact.linalg.cholesky, issue 8).
 
 References: SuperLU (scipy) solves and a dense inverse written here; the
 factorisation must be exact for any partition of any ordering, so a random one
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fe_contact import Friction, Material, Model, block_mesh, initial_state
-from fe_contact.cholesky import NotPositiveDefinite, factorise, supernodal_structure
-from fe_contact.elasticity import internal_force_and_tangent
-from fe_contact.tangent import factorise_free
+from fe_contact.linalg.cholesky import NotPositiveDefinite, factorise, supernodal_structure
+from fe_contact.fem.elasticity import internal_force_and_tangent
+from fe_contact.stepping.tangent import factorise_free
 
 SOLVE_RTOL = 1e-11  # relative to the solution's largest entry (K_ff condition number ~1e4-1e5)
 
@@ -94,7 +94,7 @@ def test_a_mesh_off_the_grid_steps_on_superlu_like_the_grid():
     import dataclasses
 
     from fe_contact import Command, step
-    from fe_contact.tangent import Tangent
+    from fe_contact.stepping.tangent import Tangent
 
     grid = model_of((4, 4, 2))
     assert grid.factor_structure.n_root == 3 * grid.n_contacts

@@ -4,8 +4,8 @@ local contact problem and its solution, and any FCLIB reader/solver recovers it.
 import h5py
 import numpy as np
 
-from fe_contact.fclib import read_local_problem
-from fe_contact.local_solver import natural_map_residual, solve_local
+from fe_contact.io.fclib import read_local_problem
+from fe_contact.contact.local_solver import natural_map_residual, solve_local
 from pushplan.cli import main
 
 RESIDUAL_TOL = 1e-8

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fe_contact.fclib import LocalProblem, read_local_problem, read_sparse_matrix, write_local_problem
+from fe_contact.io.fclib import LocalProblem, read_local_problem, read_sparse_matrix, write_local_problem
 
 DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 LOCAL_FILES = {
@@ -343,7 +343,7 @@ def test_failed_write_leaves_existing_file_intact(tmp_path, monkeypatch):
 def test_solution_of_the_stored_isotropic_problem_solves_the_anisotropic_one(tmp_path):
     """Solve FC(W', q', mu') as another FCLIB user would (plain h5py), map r = D s, and
     check the elliptic law directly and against a solve of the original problem."""
-    from fe_contact.local_solver import natural_map_residual, solve_local
+    from fe_contact.contact.local_solver import natural_map_residual, solve_local
 
     rng = np.random.default_rng(0)
     nc = 8

@@ -12,21 +12,21 @@ import itertools
 import numpy as np
 import pytest
 
-from fe_contact.assembly import (
+from fe_contact.fem.assembly import (
     assemble_matrix,
     assemble_vector,
     element_dofs,
     sparsity_pattern,
 )
-from fe_contact.elasticity import (
+from fe_contact.fem.elasticity import (
     Material,
     element_geometry,
     internal_force,
     internal_force_and_tangent,
     stored_energy,
 )
-from fe_contact.element import HEX8_CORNERS, gauss_hex, hex8_grad, hex8_shape
-from fe_contact.mesh import block_mesh, face_tributary_areas, surface_quads
+from fe_contact.fem.element import HEX8_CORNERS, gauss_hex, hex8_grad, hex8_shape
+from fe_contact.fem.mesh import block_mesh, face_tributary_areas, surface_quads
 
 GEOM_RTOL = 1e-12  # volumes, areas, coordinates (pure arithmetic on the grid)
 GAUSS_RTOL = 1e-13  # exact quadrature of polynomials
@@ -698,7 +698,7 @@ def test_nested_dissection_puts_separators_last():
     tensor grid."""
     import dataclasses
 
-    from fe_contact.mesh import nested_dissection_parts
+    from fe_contact.fem.mesh import nested_dissection_parts
 
     mesh = block_mesh((0.04, 0.02, 0.01), (8, 4, 2))
     parts = nested_dissection_parts(mesh)

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize, minimize_scalar
 
-from fe_contact.friction import (
+from fe_contact.contact.friction import (
     dual_elliptic_norm,
     elliptic_norm,
     in_cone,
@@ -27,7 +27,7 @@ from fe_contact.friction import (
     to_global,
     to_local,
 )
-from fe_contact.model import local_frame
+from fe_contact.stepping.model import local_frame
 
 # Tolerances, relative to ||tau|| unless stated.  In brackets: maxima measured over
 # 1e5 random points, |tau| in 1e-300..1e300, 1e-3 <= mu <= 10, ratios up to 1e3.

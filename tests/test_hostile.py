@@ -226,7 +226,7 @@ def test_hostile_input_is_one_line_exit_2_and_leaves_the_output(name, tmp_path, 
 
 def fclib_file(path, nc=2, drop=(), replace=None):
     """A valid local FCLIB problem of ``nc`` contacts, with datasets dropped or replaced."""
-    from fe_contact.fclib import write_local_problem
+    from fe_contact.io.fclib import write_local_problem
 
     W = np.eye(3 * nc) + 0.1
     write_local_problem(path, W, np.ones((nc, 3)), 0.3, 0.3)
@@ -254,7 +254,7 @@ FCLIB_CASES = {
 
 @pytest.mark.parametrize("name", list(FCLIB_CASES))
 def test_fclib_reader_checks_before_reading(name, tmp_path):
-    from fe_contact.fclib import read_local_problem
+    from fe_contact.io.fclib import read_local_problem
 
     options, fragment = FCLIB_CASES[name]
     path = fclib_file(tmp_path / "p.hdf5", **options)
@@ -265,7 +265,7 @@ def test_fclib_reader_checks_before_reading(name, tmp_path):
 
 def test_fclib_reader_refuses_a_small_file_declaring_a_huge_problem(tmp_path):
     """10^6 contacts declared by a file of a few kB: refused by the contact cap, nothing read."""
-    from fe_contact.fclib import read_local_problem
+    from fe_contact.io.fclib import read_local_problem
 
     path = fclib_file(tmp_path / "p.hdf5")
     with h5py.File(path, "r+") as f:

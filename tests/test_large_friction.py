@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh, initial_state, run, step
-from fe_contact.friction import in_cone
-from fe_contact.local_solver import solve_local
+from fe_contact.contact.friction import in_cone
+from fe_contact.contact.local_solver import solve_local
 
 MUS = (4.0, 10.0, 100.0, 1000.0)
 SIZE = (0.020, 0.020, 0.010)

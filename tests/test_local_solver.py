@@ -34,9 +34,9 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from fe_contact.fclib import read_local_problem
-from fe_contact.friction import project_elliptic_cone
-from fe_contact.local_solver import METHODS, NewtonWorkspace, solve_local
+from fe_contact.io.fclib import read_local_problem
+from fe_contact.contact.friction import project_elliptic_cone
+from fe_contact.contact.local_solver import METHODS, NewtonWorkspace, solve_local
 
 DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 FILES = {
@@ -394,7 +394,7 @@ def test_alart_curnier_jacobian_matches_finite_differences():
     against central differences of the function itself, at points where every
     contact is safely inside one of its smooth pieces (open, sticking or
     sliding, active or not) and with one friction axis pinned."""
-    from fe_contact.alart_curnier import alart_curnier, jacobian_product
+    from fe_contact.contact.alart_curnier import alart_curnier, jacobian_product
 
     rng = np.random.default_rng(11)
     n, m = 40, 120
@@ -433,7 +433,7 @@ def test_gmres_gives_up_on_a_product_that_is_not_finite():
     """Old LU factors of a nearly singular Newton matrix can overflow as a
     preconditioner: GMRES gives up (the Newton step then factorises afresh)
     instead of passing inf to a least-squares solve that raises LinAlgError."""
-    from fe_contact.alart_curnier import gmres
+    from fe_contact.contact.alart_curnier import gmres
 
     b = np.ones(5)
     assert gmres(lambda v: v, b, lambda v: v * np.inf, 1e-2, 20) is None

@@ -294,6 +294,6 @@ def test_bad_override_is_rejected_before_writing(tmp_path, capsys):
 
 
 def test_cli_local_methods_are_the_solver_ones():
-    from fe_contact.model import LOCAL_METHODS
+    from fe_contact.stepping.model import LOCAL_METHODS
 
     assert paper_cli.LOCAL_METHODS == LOCAL_METHODS

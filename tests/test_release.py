@@ -8,8 +8,8 @@ import pytest
 
 from fe_contact import (GRAVITY, Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh,
                         initial_state, run, run_release, step)
-from fe_contact.elasticity import internal_force
-from fe_contact.gripper import plate_wrench
+from fe_contact.fem.elasticity import internal_force
+from fe_contact.stepping.measure import plate_wrench
 
 WEIGHT_RTOL = 1e-8  # issue: normal forces sum to rho g V to 1e-8 relative
 REST_FORCE_RTOL = 1e-8  # issue: in-plane contact forces at rest <= 1e-8 of the weight

@@ -255,10 +255,10 @@ def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
     configuration; whole runs on the two paths agree."""
     import importlib
 
-    from fe_contact.cholesky import NotPositiveDefinite
+    from fe_contact.linalg.cholesky import NotPositiveDefinite
 
-    tangent_module = importlib.import_module("fe_contact.tangent")
-    from fe_contact.elasticity import internal_force_and_tangent
+    tangent_module = importlib.import_module("fe_contact.stepping.tangent")
+    from fe_contact.fem.elasticity import internal_force_and_tangent
 
     model = make_model(0.3, 0.05, angle_deg=30.0, divisions=(4, 3, 3))
     cmds = paper_commands(n_push=2)
@@ -320,9 +320,9 @@ def test_singular_tangent_is_reported_with_its_status(monkeypatch):
     the step with status tangent_singular, the iteration named, the state kept."""
     import importlib
 
-    from fe_contact.cholesky import NotPositiveDefinite
+    from fe_contact.linalg.cholesky import NotPositiveDefinite
 
-    tangent_module = importlib.import_module("fe_contact.tangent")
+    tangent_module = importlib.import_module("fe_contact.stepping.tangent")
 
     def not_spd(*args, **kwargs):
         raise NotPositiveDefinite("forced")
@@ -346,7 +346,7 @@ def test_tangent_refresh_weighs_iterations_saved_against_its_cost():
     import importlib
     from types import SimpleNamespace
 
-    refresh_pays = importlib.import_module("fe_contact.tangent").refresh_pays
+    refresh_pays = importlib.import_module("fe_contact.stepping.tangent").refresh_pays
     opts = SolverOptions(newton_tol=1e-10, newton_max_iter=30)
     cheap = SimpleNamespace(build_s=0.01, iteration_s=0.005)
     costly = SimpleNamespace(build_s=50.0, iteration_s=1.0)
@@ -365,7 +365,7 @@ def test_consumed_state_gives_up_its_tangent_at_a_refresh_and_nothing_else(monke
     import importlib
 
     # refresh whenever the contraction is slower than 1e-6 per iteration
-    monkeypatch.setattr(importlib.import_module("fe_contact.tangent"), "refresh_pays", lambda *args: True)
+    monkeypatch.setattr(importlib.import_module("fe_contact.stepping.tangent"), "refresh_pays", lambda *args: True)
     model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
     s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
     kept, rep_kept = step(model, s1, push(45.0))
@@ -392,10 +392,10 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
     the default path (tangent reused from the start) finds."""
     import importlib
 
-    from fe_contact.cholesky import NotPositiveDefinite
-    from fe_contact.elasticity import internal_force_and_tangent
+    from fe_contact.linalg.cholesky import NotPositiveDefinite
+    from fe_contact.fem.elasticity import internal_force_and_tangent
 
-    tangent_module = importlib.import_module("fe_contact.tangent")
+    tangent_module = importlib.import_module("fe_contact.stepping.tangent")
     dz = -1.5e-3
     models = [
         Model(block_mesh((0.02, 0.02, 0.01), (4, 4, 3)), Material(210e9, 0.3), Friction(0.3, 0.05, 0.0),
@@ -430,9 +430,9 @@ def test_after_a_fallback_to_the_start_tangent_a_step_refreshes_no_more(monkeypa
     instead of building that same tangent again at each slow contraction."""
     import importlib
 
-    from fe_contact.cholesky import NotPositiveDefinite
+    from fe_contact.linalg.cholesky import NotPositiveDefinite
 
-    tangent_module = importlib.import_module("fe_contact.tangent")
+    tangent_module = importlib.import_module("fe_contact.stepping.tangent")
     model = make_model(0.3, 0.05, divisions=(3, 3, 2), options=SolverOptions(refresh_ratio=1e-6))
     s1, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
     real = tangent_module.Tangent
@@ -460,7 +460,7 @@ def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pus
     from the predictor's to the full-Newton solution."""
     import importlib
 
-    step_module = importlib.import_module("fe_contact.step")
+    step_module = importlib.import_module("fe_contact.stepping.held")
     models = {reuse: make_model(0.3, 0.05, divisions=(6, 6, 3), quadrature=3,
                                 options=SolverOptions(reuse_tangent=reuse)) for reuse in (True, False)}
     model = models[True]
@@ -502,7 +502,7 @@ def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypa
     follows the turn; from the upper face turned alone an element inverts."""
     import importlib
 
-    step_module = importlib.import_module("fe_contact.step")
+    step_module = importlib.import_module("fe_contact.stepping.held")
     turn = Command(1e-3, 0.0, 0.0, math.radians(30.0))
     results = {}
     for reuse in (True, False):
@@ -528,9 +528,9 @@ def test_solve_with_contact_equals_one_solve_with_the_contact_force_added(factor
     against a dense solve, on a deformed block with rotated friction axes."""
     import importlib
 
-    from fe_contact.elasticity import internal_force_and_tangent
+    from fe_contact.fem.elasticity import internal_force_and_tangent
 
-    tangent_module = importlib.import_module("fe_contact.tangent")
+    tangent_module = importlib.import_module("fe_contact.stepping.tangent")
     model = make_model(0.3, 0.05, angle_deg=20.0, divisions=(5, 4, 3))
     rng = np.random.default_rng(0)
     U = 1e-5 * rng.standard_normal((model.mesh.n_nodes, 3))
@@ -559,7 +559,7 @@ def test_a_linear_solve_that_breaks_down_is_a_status_not_an_exception(monkeypatc
     the layers below."""
     import importlib
 
-    Tangent = importlib.import_module("fe_contact.tangent").Tangent
+    Tangent = importlib.import_module("fe_contact.stepping.tangent").Tangent
     real = Tangent.solve_with_contact
 
     def broken(self, rhs_free):

@@ -14,6 +14,8 @@ MAX_FUNCTION_LINES = 80
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
 LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "studies", "cli")
 PEERS = {"studies": {"planning"}, "mujoco": {"planning"}}  # sideways imports allowed
+# fe_contact's layers, lowest first
+FE_LAYERS = ("linalg", "fem", "contact", "io", "stepping")
 
 
 def modules(package: str):
@@ -41,21 +43,29 @@ def imported_modules(path: Path) -> set[str]:
     return names
 
 
-def layer(name: str) -> str | None:
+def layer(name: str, package: str = "pushplan") -> str | None:
     parts = name.split(".")
-    return parts[1] if parts[0] == "pushplan" and len(parts) > 1 else None
+    return parts[1] if parts[0] == package and len(parts) > 1 else None
 
 
-def test_layers_import_only_downwards():
+@pytest.mark.parametrize("package, layers, peers", [("pushplan", LAYERS, PEERS), ("fe_contact", FE_LAYERS, {})])
+def test_layers_import_only_downwards(package, layers, peers):
     wrong = []
-    for path in modules("pushplan"):
-        own = layer(module_name(path))
+    for path in modules(package):
+        own = layer(module_name(path), package)
         for name in imported_modules(path):
-            other = layer(name)
-            if own in LAYERS and other in LAYERS:
-                if LAYERS.index(other) > LAYERS.index(own) and other not in PEERS.get(own, ()):
+            other = layer(name, package)
+            if own in layers and other in layers:
+                if layers.index(other) > layers.index(own) and other not in peers.get(own, ()):
                     wrong.append(f"{module_name(path)} imports {name}")
     assert not wrong, "\n".join(wrong)
+
+
+def test_fe_contact_is_in_layers():
+    # every module of fe_contact lives in one of its layers (the package's own __init__ aside)
+    loose = [module_name(p) for p in modules("fe_contact") if layer(module_name(p), "fe_contact") not in FE_LAYERS
+             and module_name(p) != "fe_contact"]
+    assert not loose, loose
 
 
 def test_fe_contact_imports_nothing_from_pushplan_mujoco_or_rerun():
@@ -64,8 +74,10 @@ def test_fe_contact_imports_nothing_from_pushplan_mujoco_or_rerun():
             assert name.split(".")[0] not in ("pushplan", "mujoco", "rerun"), (path, name)
 
 
-def test_no_import_cycle():
-    known = {module_name(p): p for p in modules("pushplan")}
+@pytest.mark.parametrize("package", ["pushplan", "fe_contact"])
+def test_no_import_cycle(package):
+    """Imports inside functions count: ``imported_modules`` walks the whole tree."""
+    known = {module_name(p): p for p in modules(package)}
     graph = {m: {n for n in imported_modules(p) if n in known and n != m} for m, p in known.items()}
     done, stack = set(), []
 

@@ -1,4 +1,4 @@
-"""BLAS threads of the large dense kernels (fe_contact._threads)."""
+"""BLAS threads of the large dense kernels (fe_contact.linalg.threads)."""
 
 import ast
 import os
@@ -8,7 +8,7 @@ import sys
 import pytest
 from threadpoolctl import threadpool_info
 
-from fe_contact import _threads
+from fe_contact.linalg import threads as _threads
 
 
 def blas_threads():
@@ -89,7 +89,7 @@ def test_warm_up_loads_every_compiled_kernel():
     import sys
 
     code = ("import fe_contact\n"
-            "from fe_contact import alart_curnier, cholesky, friction, uzawa\n"
+            "from fe_contact.contact import alart_curnier, friction, uzawa\nfrom fe_contact.linalg import cholesky\n"
             "ks = [getattr(m, n) for m in (alart_curnier, cholesky, friction, uzawa) for n in dir(m)\n"
             "      if type(getattr(m, n)).__name__ == 'CPUDispatcher']\n"
             "before = [k.__name__ for k in ks if k.signatures]\n"

@@ -9,7 +9,7 @@ from ..errors import EXIT_SOLVER_FAILURE
 from .simulate import add_memory_flag
 
 LOCAL_METHODS = ("uzawa", "newton", "uzawa_jacobi")
-"""``fe_contact.model.LOCAL_METHODS``, repeated so that ``--help`` does not import fe_contact."""
+"""``fe_contact.stepping.model.LOCAL_METHODS``, repeated so that ``--help`` does not import fe_contact."""
 
 
 PAPER_FILES = ("paper_case*", "figures", "report.json", "report.md")

@@ -37,7 +37,7 @@ import math
 from dataclasses import dataclass
 
 from fe_contact import Command
-from fe_contact.pose import wrap_angle
+from fe_contact.stepping.pose import wrap_angle
 
 from ..errors import InputError
 from .commands import degrees_exact

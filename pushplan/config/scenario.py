@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
-from fe_contact.model import LOCAL_METHODS
+from fe_contact.stepping.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
 from .commands import MAX_TURN_DEG, commands_to_list

@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from fe_contact import Command, Model, State, StepReport, initial_state, warm_up
-from fe_contact.pose import wrap_angle
+from fe_contact.stepping.pose import wrap_angle
 
 from ..config.commands import command_to_dict
 from ..errors import InputError

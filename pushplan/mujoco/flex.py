@@ -3,7 +3,7 @@ and material with isotropic friction (MuJoCo flex contacts take no anisotropy).
 
 Flex elasticity in 3D needs ``integrator="discrete"`` and a flex cannot hang from a
 mocap body, so the flex is pinned to a dynamic pad welded to a mocap gripper.  Its
-face poses are measured like the FE model's (:mod:`fe_contact.pose`): tributary-area
+face poses are measured like the FE model's (:mod:`fe_contact.stepping.pose`): tributary-area
 weighted centroid displacement and best-fit yaw of the lower and upper grid faces.
 """
 
@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from fe_contact import Command
-from fe_contact.pose import face_centroid_displacement, planar_yaw
+from fe_contact.stepping.pose import face_centroid_displacement, planar_yaw
 
 from .frames import quat_z
 from .mjmodel import mujoco_module

@@ -1,7 +1,7 @@
 """Rotations about the world vertical of MuJoCo bodies: matrices, quaternions
 (w, x, y, z, MuJoCo's order) and the yaw of a body's rotation matrix.
 
-The yaw and twist of a deformed *face* (point sets) are :mod:`fe_contact.pose`'s
+The yaw and twist of a deformed *face* (point sets) are :mod:`fe_contact.stepping.pose`'s
 ``planar_yaw`` and ``twist_angle``; nothing here re-implements them.
 """
 

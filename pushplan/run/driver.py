@@ -14,7 +14,7 @@ runs its steps through :func:`drive`; what it does with each step is an *observe
 last report (:class:`fe_contact.ReleaseSchedule`); they are steps like any other,
 and ``run.summary.rest`` describes where the block came to rest.  A step that does not
 converge ends the run with a :class:`Failure` (its state is not kept); ``drive`` never
-turns an exception into a status: ``fe_contact.step`` reports numerical breakdowns as
+turns an exception into a status: ``fe_contact.stepping.step`` reports numerical breakdowns as
 statuses itself, so anything raised here is a bug and propagates.
 """
 

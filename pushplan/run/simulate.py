@@ -58,7 +58,7 @@ def simulate(
         rerun recording there; ``False``: none.
     export_fclib : path, optional
         Existing folder: the last local contact problem of every step is written
-        there as ``step_NNN.hdf5`` (FCLIB, :func:`fe_contact.fclib.write_local_problem`).
+        there as ``step_NNN.hdf5`` (FCLIB, :func:`fe_contact.io.fclib.write_local_problem`).
     observers : sequence
         More observers of the run (see :mod:`pushplan.run.driver`).
     """

@@ -4,7 +4,7 @@ contact nodes only (paper sect. 8, Box 3 / Box 4).
 At Newton iterate ``U_i`` (n_nodes, 3), m, with contact forces ``r_i``
 (n_contacts, 3), N, local ``(n, t_x, t_y)``, the linearised problem is
 condensed onto the contact dofs with the flexibility matrix
-``W = T C K_ff^-1 C^T T^T`` of :mod:`fe_contact.tangent`:
+``W = T C K_ff^-1 C^T T^T`` of :mod:`fe_contact.stepping.tangent`:
 
     u = W r + q,   q = T (w_i + C K_ff^-1 (-R_i)) - W r_i,
 
@@ -20,7 +20,7 @@ The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
 of the upper-face and contact force norms and the command's own out-of-balance
 force.  A breakdown (inverted element, non-finite numbers, a tangent that cannot
 be factorised, a local solve that does not converge) ends it with a
-:class:`~fe_contact.model.Status`, never an exception.
+:class:`~fe_contact.stepping.model.Status`, never an exception.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .elasticity import internal_force
-from .loads import NO_LOADING, Loading
-from .local_solver import solve_local
+from ..fem.elasticity import internal_force
+from ..fem.loads import NO_LOADING, Loading
+from ..contact.local_solver import solve_local
 from .model import IterLog, Model, State, Status
 from .tangent import Tangent, refresh_due, refreshed_tangent
 
@@ -81,8 +81,8 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
 
     The tangent cached in ``state`` (if of the same free dofs) is reused when
     ``SolverOptions.reuse_tangent``; with ``consume`` it is released at a
-    refresh (see :func:`fe_contact.step.step`).  ``loading``
-    (:class:`~fe_contact.loads.Loading`) makes the out-of-balance force
+    refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
+    (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
     ``f_int + f_spring - f_applied - f_contact``."""
     opts = model.options
     tangent = state.tangent.value if opts.reuse_tangent else None
@@ -161,7 +161,7 @@ def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: i
     if need_tangent and model.options.reuse_tangent and it == 0:
         # A tangent kept for many iterations is best taken at the converged
         # start of the step, an equilibrium state: a tangent at an iterate
-        # can be indefinite (see fe_contact.tangent.refreshed_tangent).
+        # can be indefinite (see fe_contact.stepping.tangent.refreshed_tangent).
         _, K, _ = loading.tangent(model, state.displacement)
         f_int, min_det = internal_force(geometry, elements, U, material)
     elif need_tangent:
@@ -219,7 +219,7 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
                         timings: dict, local_problem_hook):
     """Contact solve and displacement update of one Newton iteration.
 
-    Returns the :class:`~fe_contact.local_solver.LocalSolution` (None if not
+    Returns the :class:`~fe_contact.contact.local_solver.LocalSolution` (None if not
     solved), the update of the free dofs (n_free,), m, and None, or a failure
     ``(status, message)`` instead of the update.
     """

@@ -31,10 +31,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ._threads import dense_kernel, dense_threads
-from .cholesky import NotPositiveDefinite, SupernodalFactor, factorise
-from .elasticity import internal_force_and_tangent
-from .local_solver import NewtonWorkspace
+from ..linalg.threads import dense_kernel, dense_threads
+from ..linalg.cholesky import NotPositiveDefinite, SupernodalFactor, factorise
+from ..fem.elasticity import internal_force_and_tangent
+from ..contact.local_solver import NewtonWorkspace
 from .model import Model, State
 
 _THREADED_WORK = 2_000_000  # right-hand sides x free dofs above which W is computed on threads
@@ -74,7 +74,7 @@ def factorise_free(K, free: np.ndarray, order: np.ndarray | None = None):
 
 class LUFactor:
     """SuperLU factors of ``K_ff`` with the solve interface of
-    :class:`~fe_contact.cholesky.SupernodalFactor` (for an indefinite tangent
+    :class:`~fe_contact.linalg.cholesky.SupernodalFactor` (for an indefinite tangent
     or a mesh that is not a tensor grid)."""
 
     def __init__(self, K, free: np.ndarray, order: np.ndarray | None):
@@ -95,14 +95,14 @@ class Tangent:
 
     ``W`` is the contact block of ``K_ff^-1``.  On a tensor-grid mesh the
     tangent is factorised by the multifrontal Cholesky of
-    :mod:`fe_contact.cholesky`, which eliminates the contact dofs last, so
+    :mod:`fe_contact.linalg.cholesky`, which eliminates the contact dofs last, so
     ``W`` is the inverse of the Schur complement it leaves (no solves with
     one right-hand side per contact dof).  If the tangent is not positive
     definite, or the mesh is not a grid, SuperLU factorises it and ``K_ff^-1``
     is applied to one unit vector per contact dof, on
-    :func:`~fe_contact._threads.dense_threads` threads (SuperLU releases the GIL).
+    :func:`~fe_contact.linalg.threads.dense_threads` threads (SuperLU releases the GIL).
     With ``lu_fallback=False`` a grid mesh's tangent that is not positive
-    definite raises :class:`~fe_contact.cholesky.NotPositiveDefinite` instead.
+    definite raises :class:`~fe_contact.linalg.cholesky.NotPositiveDefinite` instead.
 
     Attributes
     ----------
@@ -263,7 +263,7 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
     the converged start of the step is taken instead, as a step without a
     cached tangent does.  ``handed_K`` is a one-element list the caller gives
     up, so that ``K`` goes before the start-state one is assembled.
-    ``loading`` (:class:`~fe_contact.loads.Loading`) adds its springs to the
+    ``loading`` (:class:`~fe_contact.fem.loads.Loading`) adds its springs to the
     start-state stiffness.
 
     Returns

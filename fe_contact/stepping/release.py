@@ -30,7 +30,7 @@ weight / loaded normal force, then 0 (:func:`open_grips`).
 Held by contact and friction alone, the free block's rigid modes make
 ``K_ff`` singular wherever its contact nodes slip or separate; regularising
 springs on the contact nodes anchored at the last converged configuration
-(:mod:`fe_contact.loads`) keep the flexibility matrix defined and vanish at
+(:mod:`fe_contact.fem.loads`) keep the flexibility matrix defined and vanish at
 rest; settle steps (``Command()``) follow the ramp until their force is below
 ``settle_tol`` times the weight.  The free block is prestressed, so its
 consistent tangent is indefinite in rigid rotations; open-release steps use the
@@ -40,14 +40,16 @@ springs; the solution is the same).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .elasticity import internal_force
-from .loads import Loading
+from ..fem.elasticity import internal_force
+from ..fem.loads import Loading
+from .held import next_state
 from .measure import measure
 from .model import Command, Model, State, StepReport
+from .newton import equilibrium
 
 MODES = ("lift", "open")
 GRIP_FLOOR = 0.1
@@ -145,7 +147,7 @@ def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
 
 
 def run_release(model: Model, state: State, release: Release, step, loaded: StepReport | None = None):
-    """Step ``model`` from ``state`` through ``release`` with ``step`` (``fe_contact.step``).
+    """Step ``model`` from ``state`` through ``release`` with ``step`` (``fe_contact.stepping.step``).
 
     Returns the final state and the reports of the release steps.
     """
@@ -184,7 +186,7 @@ def open_loading(model: Model, state: State, grip: float, upper_load: np.ndarray
     """Applied loads of an open-release step to ``grip``: the weight, the
     gripper's hold scaled by ``grip`` (its preload and its in-plane pad
     springs together, :func:`gripper_load`) and the regularising springs on the
-    contact nodes anchored at ``state`` (:mod:`fe_contact.loads`)."""
+    contact nodes anchored at ``state`` (:mod:`fe_contact.fem.loads`)."""
     upper, lower = model.mesh.upper, model.mesh.lower
     external = np.zeros((model.mesh.n_nodes, 3))
     external[upper] = grip * upper_load
@@ -204,11 +206,6 @@ def open_step(model: Model, state: State, command: Command, t0: float, local_pro
               consume: bool = False) -> tuple[State, StepReport]:
     """One step of an open release (see the module docstring); ``command``
     gives the fraction of the gripper's hold released (``open``) and moves nothing."""
-    from dataclasses import replace
-
-    from .newton import equilibrium
-    from .step import next_state
-
     if command.moves:
         raise ValueError("the gripper has let go of the upper face: a command can no longer move it")
     upper_load = state.upper_load if state.upper_load is not None else gripper_load(model, state)

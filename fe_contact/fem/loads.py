@@ -9,7 +9,7 @@ Self-weight is the body force ``f0`` of the paper's eq. (3) with ``f0 = rho g``,
 a dead load (it does not follow the deformation: its reference-configuration
 integral is exact in the total Lagrangian setting).
 
-An open release (the gripper lets go: :mod:`fe_contact.release`) leaves the
+An open release (the gripper lets go: :mod:`fe_contact.stepping.release`) leaves the
 block held by contact and friction alone, so ``K_ff`` is singular in the
 rigid modes of a block whose contact nodes slip or separate, and the paper's
 flexibility matrix ``W = C K_ff^-1 C^T`` does not exist.  It is regularised by
@@ -48,7 +48,7 @@ def nodal_volumes(elements: np.ndarray, dvol: np.ndarray, n_nodes: int, quadratu
     ----------
     elements : ndarray of int, shape (n_elems, 8)
     dvol : ndarray, shape (n_elems, n_qp)
-        Gauss-point volume weights of :class:`~fe_contact.elasticity.ElementGeometry`, m^3.
+        Gauss-point volume weights of :class:`~fe_contact.fem.elasticity.ElementGeometry`, m^3.
     """
     points, _ = gauss_hex(quadrature)
     weights = np.einsum("qa,eq->ea", hex8_shape(points), dvol)
@@ -130,7 +130,7 @@ class Loading:
         CSR data positions of the stiffness's diagonal (where the springs go).
     tension_only_geometric : bool
         Tangents with the geometric stiffness of the tensile stresses only
-        (:func:`~fe_contact.elasticity.internal_force_and_tangent`): positive
+        (:func:`~fe_contact.fem.elasticity.internal_force_and_tangent`): positive
         definite with the springs, for a free prestressed block.
     """
 

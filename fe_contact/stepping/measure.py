@@ -15,7 +15,7 @@ displacement increment over the step, m (world x, y):
 A node is separated when ``r_n <= SEPARATION_FORCE max |r|`` and slipping when
 in contact and ``|du_i| > SLIP_DISPLACEMENT max(block size)``; otherwise it
 sticks.  Centroids, the lower face's yaw and the twist are the face
-kinematics of :mod:`fe_contact.pose`.
+kinematics of :mod:`fe_contact.stepping.pose`.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from .elasticity import stored_energy
-from .loads import NO_LOADING, Loading
+from ..fem.elasticity import stored_energy
+from ..fem.loads import NO_LOADING, Loading
 from .model import Command, Model, NodeStatus, State, StepReport
 from .newton import Equilibrium
 from .pose import face_centroid_displacement, planar_yaw, twist_angle
@@ -37,7 +37,7 @@ SLIP_DISPLACEMENT = 1e-9
 
 
 def node_status(model: Model, r: np.ndarray, slip_inc: np.ndarray) -> np.ndarray:
-    """:class:`~fe_contact.model.NodeStatus` of each contact node (n_lower,)
+    """:class:`~fe_contact.stepping.model.NodeStatus` of each contact node (n_lower,)
     int8, from its local force ``r`` (n_lower, 3) and in-plane increment
     ``slip_inc`` (n_lower, 2)."""
     r_scale = float(np.abs(r).max()) if r.size else 0.0
@@ -51,7 +51,7 @@ def node_status(model: Model, r: np.ndarray, slip_inc: np.ndarray) -> np.ndarray
 
 def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: float,
             loading: Loading = NO_LOADING, extra: dict | None = None) -> StepReport:
-    """The :class:`~fe_contact.model.StepReport` of a step from ``state`` under
+    """The :class:`~fe_contact.stepping.model.StepReport` of a step from ``state`` under
     ``command`` that ended in ``eq``; ``t0`` is the ``time.perf_counter()`` at
     its start.  ``loading`` is the step's applied loads; ``extra`` holds report
     fields the caller knows better (``upper_force`` of a released upper face,
@@ -125,5 +125,14 @@ def _drive_wrench(model: Model, U: np.ndarray, f_eff) -> np.ndarray:
     the upper-face drive applies on the block (zeros for a released face)."""
     if f_eff is None or model.upper_dofs.size == 0:
         return np.zeros(3)
-    from .gripper import plate_wrench
     return plate_wrench(model, U, f_eff[model.upper_dofs].reshape(-1, 3))
+
+
+def plate_wrench(model: Model, U: np.ndarray, f_upper: np.ndarray) -> np.ndarray:
+    """In-plane resultant ``(F_x, F_y, M_z)`` (3,), N, N, N m, of upper-face
+    nodal forces ``f_upper`` (n_upper, 3), the moment about the face's current
+    centre (the plate's centre), for displacements ``U`` (n_nodes, 3)."""
+    x = (model.mesh.nodes + U)[model.mesh.upper, :2]
+    rel = x - x.mean(axis=0)
+    moment = float((rel[:, 0] * f_upper[:, 1] - rel[:, 1] * f_upper[:, 0]).sum())
+    return np.array([f_upper[:, 0].sum(), f_upper[:, 1].sum(), moment])

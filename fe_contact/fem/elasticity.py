@@ -55,7 +55,7 @@ class Material:
         Poisson's ratio nu, in (-1, 0.5).
     density : float
         Mass density rho, kg/m^3, >= 0; the block's self-weight ``rho g`` is
-        the body force ``f0`` of the paper's eq. (3) (:mod:`fe_contact.loads`).
+        the body force ``f0`` of the paper's eq. (3) (:mod:`fe_contact.fem.loads`).
         0 (default) is the paper's weightless block.
     """
 
@@ -434,13 +434,13 @@ def internal_force_and_tangent(
         Total nodal displacements, m.
     material : Material
     pattern : SparsityPattern
-        From :func:`fe_contact.assembly.sparsity_pattern` for ``elements``.
+        From :func:`fe_contact.fem.assembly.sparsity_pattern` for ``elements``.
     tension_only_geometric : bool
         Build the geometric stiffness with the positive part of ``S`` only
         (per Gauss point, ``S_+ = V max(Lambda, 0) V^T``): a positive
         semi-definite tangent for a free, prestressed block whose consistent
         tangent is indefinite in its rigid rotations (an open release,
-        :mod:`fe_contact.release`).  Not the consistent tangent: Newton
+        :mod:`fe_contact.stepping.release`).  Not the consistent tangent: Newton
         converges linearly with it, to the same solution.
 
     Returns

@@ -1,6 +1,6 @@
 """Alart-Curnier equations of the isotropic frictional contact problem and the
 linear algebra of a semismooth Newton step on them (the ``"newton"`` method of
-:mod:`fe_contact.local_solver`).
+:mod:`fe_contact.contact.local_solver`).
 
 For scaled forces ``s`` (n, 3), ordered ``(n, t_x, t_y)``, with
 ``u_s = D W D s + q_s`` and per contact a normal and a tangential
@@ -24,7 +24,7 @@ import numpy as np
 import scipy.linalg as sla
 from numba import njit
 
-from ._threads import dense_kernel
+from ..linalg.threads import dense_kernel
 
 
 def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):

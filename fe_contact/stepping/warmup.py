@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from .elasticity import Material
-from .local_solver import solve_local
-from .mesh import block_mesh
+from ..fem.elasticity import Material
+from ..contact.local_solver import solve_local
+from ..fem.mesh import block_mesh
 from .model import Command, Friction, Model, SolverOptions, initial_state
 from .step import step
 

@@ -1,7 +1,7 @@
 """The compliant gripper: the upper face is one rigid plate whose vertical
 motion is commanded and whose in-plane pose ``p = (x, y, theta)`` is tied to
 the commanded pose ``c`` by springs ``k = (k_xy, k_xy, k_yaw)``
-(:class:`~fe_contact.loads.Gripper`).
+(:class:`~fe_contact.fem.loads.Gripper`).
 
 The plate is in equilibrium when the springs balance the block's reaction:
 
@@ -27,22 +27,13 @@ from dataclasses import replace
 import numpy as np
 
 from .model import Command, Model, State, Status, StepReport, TangentCache
+from .held import held_step, next_state
 from .predictor import commanded_pose
 
 MAX_TRIALS = 40
 """Limit on the trial plate poses of a step."""
 PLATE_TOL = 3e-10
 """Plate out-of-balance ``|g|``, relative to the plate's force scale, at which the plate is in equilibrium."""
-
-
-def plate_wrench(model: Model, U: np.ndarray, f_upper: np.ndarray) -> np.ndarray:
-    """In-plane resultant ``(F_x, F_y, M_z)`` (3,), N, N, N m, of upper-face
-    nodal forces ``f_upper`` (n_upper, 3), the moment about the face's current
-    centre (the plate's centre), for displacements ``U`` (n_nodes, 3)."""
-    x = (model.mesh.nodes + U)[model.mesh.upper, :2]
-    rel = x - x.mean(axis=0)
-    moment = float((rel[:, 0] * f_upper[:, 1] - rel[:, 1] * f_upper[:, 0]).sum())
-    return np.array([f_upper[:, 0].sum(), f_upper[:, 1].sum(), moment])
 
 
 def _block_stiffness(model: Model) -> np.ndarray:
@@ -60,8 +51,6 @@ def compliant_step(model: Model, state: State, command: Command, t0: float, loca
     The report's ``gripper_force`` is the spring force ``k (c - p)`` and its
     ``plate`` the plate pose ``p``; the new state's commanded pose is ``c``.
     """
-    from .step import held_step, next_state
-
     k = model.gripper.stiffness
     translation, rotation = commanded_pose(state, command)
     c = np.array([translation[0], translation[1], rotation])

@@ -5,7 +5,7 @@ Find per contact ``r`` (shape ``(n_contacts, 3)``, local ``(n, t_x, t_y)``) with
     u = W r + q,    r in K_mu,    modified(u) in K_mu*,    r . modified(u) = 0,
 
 i.e. ``r = proj_K(r - rho * modified(u))`` for any ``rho > 0``, where ``K_mu`` is
-the elliptic cone of :mod:`fe_contact.friction` and ``modified(u) = (u_n +
+the elliptic cone of :mod:`fe_contact.contact.friction` and ``modified(u) = (u_n +
 ||M u_t||, u_t)`` is De Saxcé's modified velocity.  ``W`` is symmetric positive
 (semi)definite of size ``3 n_contacts``, blocks ordered like ``r``.
 
@@ -14,7 +14,7 @@ Methods
 ``"uzawa"``
     The paper's Uzawa / bi-potential fixed point with its per-contact ``rho = 1
     / min(w_nn, w_txtx, w_tyty)`` (sect. 8), contact by contact (Gauss-Seidel):
-    :mod:`fe_contact.uzawa`.
+    :mod:`fe_contact.contact.uzawa`.
 ``"uzawa_jacobi"``
     The same with all contacts updated at once, safeguarded by halving ``rho``.
 ``"newton"``
@@ -23,7 +23,7 @@ Methods
     mu_y / mu)``, ``mu = max(mu_x, mu_y)`` (``D = I`` for isotropic contacts),
     with a normal and a tangential ``rho`` per contact, globalised by a
     non-monotone Armijo line search on ``|F|^2 / 2`` (the equations and the
-    linear algebra of a step: :mod:`fe_contact.alart_curnier`).
+    linear algebra of a step: :mod:`fe_contact.contact.alart_curnier`).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The paper's Uzawa / bi-potential fixed point (sect. 8, eq. 42-45) for the
-condensed problem ``u = W r + q`` of :mod:`fe_contact.local_solver`.
+condensed problem ``u = W r + q`` of :mod:`fe_contact.contact.local_solver`.
 
 Each contact ``c`` is updated by
 

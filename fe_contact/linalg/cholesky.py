@@ -2,7 +2,7 @@
 contact dofs eliminated last.
 
 The free dofs are ordered by geometric nested dissection of the interior
-(:func:`fe_contact.mesh.nested_dissection_parts`) and the contact dofs last.
+(:func:`fe_contact.fem.mesh.nested_dissection_parts`) and the contact dofs last.
 Each part of the ordering is a *supernode*: its columns of the factor are kept
 as one dense block over the part and the later dofs they couple to (its
 *boundary*), and the elimination of the part is a dense Cholesky factorisation,
@@ -301,7 +301,7 @@ def factorise(structure: SupernodalStructure, data: np.ndarray) -> SupernodalFac
     structure : SupernodalStructure
     data : ndarray, shape (nnz,)
         Values of the full matrix in the CSR layout the structure was built
-        from (``K.data`` of :func:`fe_contact.assembly.assemble_matrix`).
+        from (``K.data`` of :func:`fe_contact.fem.assembly.assemble_matrix`).
 
     Returns
     -------

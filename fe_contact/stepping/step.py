@@ -7,11 +7,11 @@
     report    = measure(model, state, command, eq)  StepReport of the last iterate
     state'    = next_state(state, eq, pose, report) if eq converged, else state
 
-Stages live in their own modules: :mod:`fe_contact.predictor` (start of the
-loop), :mod:`fe_contact.newton` (equilibrium loop), :mod:`fe_contact.tangent`
+Stages live in their own modules: :mod:`fe_contact.stepping.predictor` (start of the
+loop), :mod:`fe_contact.stepping.newton` (equilibrium loop), :mod:`fe_contact.stepping.tangent`
 (factorised tangent, flexibility matrix ``W``, when to refresh them),
-:mod:`fe_contact.measure` (the report).  Numerical breakdowns come back as a
-failed report with its :class:`~fe_contact.model.Status`; only invalid
+:mod:`fe_contact.stepping.measure` (the report).  Numerical breakdowns come back as a
+failed report with its :class:`~fe_contact.stepping.model.Status`; only invalid
 arguments raise ``ValueError``.
 """
 
@@ -21,11 +21,11 @@ import time
 
 import numpy as np
 
-from .loads import NO_LOADING, Loading
-from .measure import measure
-from .model import Command, Model, State, StepReport, TangentCache
-from .newton import Equilibrium, equilibrium
-from .predictor import commanded_pose, predictor, upper_face_displacement
+from .gripper import compliant_step
+from .held import held_step, next_state
+from .model import Command, Model, State, StepReport, initial_state
+from .predictor import commanded_pose
+from .release import open_step
 
 
 def step(model: Model, state: State, command: Command, local_problem_hook=None, *,
@@ -44,7 +44,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         the problem exactly as the local solver got it: ``u = W r + q`` in the
         local frames, divided by the mean diagonal compliance so that ``W`` is
         dimensionless and ``q``, ``u`` are in N like ``r``; ``solution`` is the
-        :class:`~fe_contact.local_solver.LocalSolution`.  For exporting the
+        :class:`~fe_contact.contact.local_solver.LocalSolution`.  For exporting the
         problems (FCLIB) or studying solvers; the hook must not modify them.
     consume : bool
         The caller will not step from ``state`` again (a run that only goes
@@ -71,50 +71,14 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     _check_arguments(model, state, command)
     t0 = time.perf_counter()
     if state.grip < 1.0 or command.open > 0:
-        from .release import open_step
         return open_step(model, state, command, t0, local_problem_hook, consume)
     if not model.gripper.rigid:
-        from .gripper import compliant_step
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
     translation, rotation = commanded_pose(state, command)
     eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
     if not report.converged:
         return state, report
     return next_state(state, eq, translation, rotation, report), report
-
-
-def held_step(model: Model, state: State, command: Command, translation: np.ndarray, rotation: float,
-              t0: float, local_problem_hook=None, consume: bool = False,
-              extra: dict | None = None) -> tuple[Equilibrium, StepReport]:
-    """Equilibrium and report of a step with the upper face held by the plate
-    at pose ``(translation, rotation)`` (the rigid drive; the compliant
-    gripper's trial poses)."""
-    U = predictor(model, state, command)
-    U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
-    loading = held_loading(model)
-    eq = equilibrium(model, state, U, local_problem_hook, consume, loading)
-    return eq, measure(model, state, command, eq, t0, loading, extra)
-
-
-def held_loading(model: Model) -> Loading:
-    """The applied loads of a held step: the self-weight, if any."""
-    return NO_LOADING if model.body_force is None else Loading(external=model.body_force)
-
-
-def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation: float,
-               report: StepReport, **changes) -> State:
-    """The state a converged step ends in, with its own cache of ``eq``'s
-    tangent; ``changes`` sets ``plate``, ``grip``, ``upper_load``."""
-    return State(
-        displacement=eq.displacement,
-        reaction=eq.reaction,
-        upper_translation=translation,
-        upper_rotation=rotation,
-        slip_path=report.slip_path,
-        step_index=state.step_index + 1,
-        tangent=TangentCache(eq.tangent),
-        **changes,
-    )
 
 
 def _check_arguments(model, state, command) -> None:
@@ -146,8 +110,6 @@ def run(model: Model, commands, state: State | None = None, stop_on_failure: boo
         Final state (the last good one if a step failed and ``stop_on_failure``).
     reports : list[StepReport]
     """
-    from .model import initial_state
-
     state = initial_state(model) if state is None else state
     reports = []
     for i, cmd in enumerate(commands):

@@ -4,7 +4,7 @@ load-step commands and step reports.
 The split follows MuJoCo's ``mjModel`` / ``mjData``: a :class:`Model` is immutable
 and holds everything precomputed once (mesh, quadrature geometry, sparsity
 pattern, contact frames); a :class:`State` is the path-dependent solution after
-some load steps.  :func:`fe_contact.step.step` maps ``(model, state, command)`` to
+some load steps.  :func:`fe_contact.stepping.step.step` maps ``(model, state, command)`` to
 a new state and a :class:`StepReport` without mutating its inputs, so a planner
 can branch from any state.
 """
@@ -12,17 +12,17 @@ can branch from any state.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .assembly import SparsityPattern, sparsity_pattern
-from .elasticity import ElementGeometry, Material, element_geometry
-from .cholesky import SupernodalStructure, supernodal_structure
-from .loads import Gripper, body_force, diagonal_positions, nodal_volumes
-from .mesh import BlockMesh, face_tributary_areas, nested_dissection_parts
+from ..fem.assembly import SparsityPattern, sparsity_pattern
+from ..fem.elasticity import ElementGeometry, Material, element_geometry
+from ..linalg.cholesky import SupernodalStructure, supernodal_structure
+from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_volumes
+from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
 
-from .local_solver import METHODS as LOCAL_METHODS
+from ..contact.local_solver import METHODS as LOCAL_METHODS
 from .report import IterLog, NodeStatus, Status, StepReport  # noqa: F401  (re-exported)
 
 
@@ -99,7 +99,7 @@ class SolverOptions:
         tangent may be recomputed.
     release_stiffness : float
         ``beta`` of the regularising springs of an open release, as a fraction
-        of the block's shear stiffness (:mod:`fe_contact.loads`); smaller is
+        of the block's shear stiffness (:mod:`fe_contact.fem.loads`); smaller is
         closer to the quasi-static limit and needs more settle steps.
     """
 
@@ -177,7 +177,7 @@ class Model:
     upper_area: np.ndarray = field(init=False, repr=False)
     """(n_upper,) tributary area of each upper-face node, m^2 (centroid weights)."""
     nodal_volume: np.ndarray = field(init=False, repr=False)
-    """(n_nodes,) consistent nodal volumes, m^3 (:func:`fe_contact.loads.nodal_volumes`)."""
+    """(n_nodes,) consistent nodal volumes, m^3 (:func:`fe_contact.fem.loads.nodal_volumes`)."""
     body_force: np.ndarray | None = field(init=False, repr=False)
     """(n_dofs,) self-weight, N, or None when ``material.density == 0``."""
     diagonal: np.ndarray = field(init=False, repr=False)
@@ -185,7 +185,7 @@ class Model:
     factor_structure: SupernodalStructure | None = field(init=False, repr=False)
     """Symbolic multifrontal Cholesky factorisation of the free-dof stiffness:
     nested dissection of the interior, the contact dofs last in ``lower_dofs``
-    order (:mod:`fe_contact.cholesky`); None if the mesh is not a tensor grid
+    order (:mod:`fe_contact.linalg.cholesky`); None if the mesh is not a tensor grid
     (then SuperLU factorises and orders)."""
 
     def __post_init__(self):
@@ -241,7 +241,6 @@ class Model:
         """This model with the upper face free (``hold_upper=False``), built once."""
         cache = self.__dict__.get("_released")
         if cache is None:
-            from dataclasses import replace
             cache = self if not self.hold_upper else replace(self, hold_upper=False)
             object.__setattr__(self, "_released", cache)
         return cache
@@ -249,7 +248,6 @@ class Model:
     @property
     def weight(self) -> float:
         """Self-weight of the block ``rho g V``, N."""
-        from .loads import GRAVITY
         return self.material.density * GRAVITY * float(self.nodal_volume.sum())
 
     @property
@@ -292,8 +290,6 @@ def build_model(
     mu_x, mu_y, angle : float
         Friction coefficients and orthotropy angle (rad).
     """
-    from .mesh import block_mesh
-
     return Model(
         mesh=block_mesh(size, divisions),
         material=Material(young, poisson),
@@ -316,7 +312,7 @@ class Command:
         centre, rad, counter-clockwise seen from +z.
     open : float
         Fraction, in [0, 1], of the gripper's load on the upper face released in
-        this step (an open release, :mod:`fe_contact.release`).  A step with
+        this step (an open release, :mod:`fe_contact.stepping.release`).  A step with
         ``open > 0``, or any step once the grip is partly released, moves no
         gripper: its ``dx`` ... ``dtheta`` must be 0.
     """
@@ -342,7 +338,7 @@ class Command:
 
 
 class TangentCache:
-    """A state's handle on its cached tangent (:class:`fe_contact.tangent.Tangent`).
+    """A state's handle on its cached tangent (:class:`fe_contact.stepping.tangent.Tangent`).
 
     ``value`` is the tangent or None.  Each :class:`State` gets its own handle;
     the steps branched from the state read it and leave it alone, except a step

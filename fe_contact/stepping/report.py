@@ -49,7 +49,7 @@ class StepReport:
     status: Status
     message: str
     step_index: int
-    command: "Command"  # fe_contact.model.Command
+    command: "Command"  # fe_contact.stepping.model.Command
     displacement: np.ndarray  # (n_nodes, 3) m
     reaction_local: np.ndarray  # (n_lower, 3) N, (n, t_x, t_y)
     reaction_world: np.ndarray  # (n_lower, 3) N, (x, y, z)
