@@ -1,6 +1,6 @@
 """MuJoCo bridge, world frame and what goes back to MuJoCo (issue 22): a yawed box resting
 exactly at its height, friction axes from a ``<custom>`` numeric, keyframes and CSV with
-the block pose, FE forces in ``xfrc_applied`` / ``userdata``, the co-simulation
+the block pose, FE forces in ``userdata`` and the gripper's ``xfrc_applied``, the co-simulation
 recording's ``sim_time`` and boxes, planner targets in the world frame.
 
 Expected values are stated by hand from the scene as written (a block at (13, -27) mm
@@ -172,7 +172,7 @@ def _base_table() -> dict:
 # ------------------------------------------------------------- forces into MuJoCo
 
 
-def test_cosimulation_writes_the_fe_forces_into_xfrc_applied_and_userdata(tmp_path):
+def test_cosimulation_writes_the_fe_forces_into_userdata_and_the_reaction_on_the_gripper(tmp_path):
     path = yawed_scene(tmp_path)
     scene = scene_from_mjcf(path)
     m = mujoco.MjModel.from_xml_path(str(path))
@@ -180,7 +180,7 @@ def test_cosimulation_writes_the_fe_forces_into_xfrc_applied_and_userdata(tmp_pa
     mujoco.mj_forward(m, d)
     fe = scene.scenario.model(elements=(3, 3, 1), quadrature=2)
     coupler = CoSimulation(m, d, scene, "gripper", 0.01, fe)
-    bid = m.body("block").id
+    bid, gid = m.body("block").id, m.body("gripper").id
     R0 = rz(math.radians(YAW0_DEG))
     lower = fe.mesh.lower
     n_sub = 10
@@ -198,15 +198,20 @@ def test_cosimulation_writes_the_fe_forces_into_xfrc_applied_and_userdata(tmp_pa
         contact = R0 @ rep.reaction_world.sum(axis=0)
         points = np.array([X0, Y0, 0.0]) + (fe.mesh.nodes[lower] + rep.displacement[lower]) @ R0.T
         moment = np.cross(points - d.xipos[bid], rep.reaction_world @ R0.T).sum(axis=0)  # about MuJoCo's CoM
-        for written, expected in ((d.xfrc_applied[bid, :3], contact), (d.xfrc_applied[bid, 3:], moment),
-                                  (d.userdata[0:3], gripper), (d.userdata[3:6], contact),
-                                  (d.userdata[6:9], moment)):
+        # the steel block has no density here: the gripper's moment balances the contact's
+        grip_moment = -np.cross(points - d.xipos[gid], rep.reaction_world @ R0.T).sum(axis=0)
+        for written, expected in ((d.userdata[0:3], gripper), (d.userdata[3:6], contact),
+                                  (d.userdata[6:9], moment), (d.xfrc_applied[gid, :3], -gripper),
+                                  (d.xfrc_applied[gid, 3:], -grip_moment)):
             np.testing.assert_allclose(written, expected, rtol=0, atol=FORCE_REL * np.linalg.norm(expected))
+        assert not d.xfrc_applied[bid].any()  # the block is kinematic: no partial wrench on it
         assert contact[2] == pytest.approx(rep.normal_force, rel=1e-12) and contact[2] > 0  # the floor pushes up
-    # between control periods the forces stay written
+    # between control periods nothing is recomputed and nothing moves the block
+    pos = d.qpos[:7].copy()
     mujoco.mj_step(m, d)
     assert coupler.update() is None
-    np.testing.assert_allclose(d.xfrc_applied[bid, :3], contact, rtol=0, atol=FORCE_REL * np.linalg.norm(contact))
+    assert np.abs(d.qpos[:7] - pos).max() < 1e-15
+    np.testing.assert_allclose(d.xfrc_applied[gid, :3], -gripper, rtol=0, atol=FORCE_REL * np.linalg.norm(gripper))
 
 
 # ------------------------------------------------- co-simulation: world frame, rrd

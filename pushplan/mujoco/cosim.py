@@ -1,19 +1,6 @@
-"""Co-simulation: the FE block inside an ordinary MuJoCo stepping loop
-(:class:`CoSimulation`), and a headless run of it along a command list
-(:func:`run_cosimulation`) with its record and rerun recording.
-
-Each control period the gripper's motion becomes one upper-face
-``fe_contact.Command``, run through :func:`pushplan.run.drive`; the FE lower-face pose
-(centroid displacement and best-fit yaw) is written into the MuJoCo block, and the FE
-forces where a MuJoCo controller reads them (world frame, N and N m):
-
-* ``data.xfrc_applied[block]``: the FE contact resultant the floor applies on the
-  block (``[0:3]``) and its moment about the block body's centre of mass (``[3:6]``);
-* ``data.userdata[0:9]`` (when the MJCF has ``<size nuserdata="9"/>`` or more), the
-  layout :data:`USERDATA_LAYOUT`: the force the gripper applies on the block's upper
-  face, the contact resultant and its moment about the centre of mass.
-
-MuJoCo's own ``data.contact`` forces on the block remain those of its rigid box.
+"""Headless co-simulation: the coupling of :mod:`.coupling` (the same one a user's own
+loop calls) along a command list with a mocap gripper (:func:`run_cosimulation`), its
+record (:class:`CosimRecord`) and rerun recording (:func:`save_recording`).
 """
 
 from __future__ import annotations
@@ -26,173 +13,15 @@ from typing import Sequence
 
 import numpy as np
 
-from fe_contact import Command, Model, State, StepReport, initial_state, warm_up
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import Command, Model, StepReport, warm_up
 
 from ..config.commands import command_to_dict
 from ..errors import InputError
-from ..run.driver import drive
 from ..run.summary import RunStatus, StepSummary
-from .frames import matrix_yaw, rz
-from .mjmodel import find_object, frame_of, mocap_index, mujoco_module, object_name
+from .coupling import USERDATA_LAYOUT, CoSimulation
+from .mjmodel import mocap_index, mujoco_module, object_name
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory
-
-
-USERDATA_LAYOUT = {"gripper_force": slice(0, 3), "contact_force": slice(3, 6), "contact_moment": slice(6, 9)}
-"""Where :class:`CoSimulation` writes the FE forces in ``data.userdata`` (world frame, N, N m)."""
-USERDATA_SIZE = 9
-
-
-class CoSimulation:
-    """Couple the FE block into an ordinary MuJoCo stepping loop.
-
-    Call :meth:`update` after every ``mj_step``.  At each control period it turns
-    the gripper's displacement since the previous period into an upper-face
-    :class:`fe_contact.Command`, steps the FE model and writes the block's
-    resulting lower-face pose (centroid displacement and best-fit yaw) into the
-    MuJoCo block (free joint ``qpos`` with zero ``qvel``, or mocap pose) and the FE
-    forces into ``data.xfrc_applied`` / ``data.userdata`` (module docstring; also kept
-    as :attr:`gripper_force`, :attr:`contact_force`, :attr:`contact_moment`, world
-    frame).  Between periods it re-writes pose and forces, so MuJoCo shows the FE
-    prediction, not its own rigid dynamics.  A failed FE step keeps the last good state and pose; the next
-    period retries with the accumulated gripper motion.
-
-    At construction the block is put at its reference (``qpos0``) pose and the FE
-    state is the undeformed block; the gripper's pose then fixes where the upper
-    face is attached to it.
-
-    Parameters
-    ----------
-    mj_model, mj_data : mujoco.MjModel, mujoco.MjData
-    scene : MjcfScene
-        Import of the same MJCF.
-    gripper : str
-        Body or site carrying the upper face (mocap or any other).
-    control_period : float
-        s of MuJoCo time between FE steps; the first is one period after construction.
-    fe_model : fe_contact.Model, optional
-        Defaults to ``scene.scenario.model()``; its block must have the MJCF size.
-
-    Raises
-    ------
-    InputError
-        ``control_period`` below the MuJoCo timestep, ``fe_model`` of another size, a
-        block without a free joint or mocap, an unknown gripper.
-    """
-
-    def __init__(self, mj_model, mj_data, scene: MjcfScene, gripper: str = "gripper",
-                 control_period: float = 0.05, fe_model: Model | None = None):
-        mj = mujoco_module()
-        if not (isinstance(control_period, (int, float)) and math.isfinite(control_period)
-                and control_period >= mj_model.opt.timestep):
-            raise InputError(
-                f"control_period must be >= the MuJoCo timestep {mj_model.opt.timestep}, got {control_period!r}")
-        self.mj_model, self.mj_data, self.scene = mj_model, mj_data, scene
-        self.model = fe_model or scene.scenario.model()
-        extent = np.ptp(self.model.mesh.nodes, axis=0)
-        if not np.allclose(extent, scene.scenario.size, rtol=1e-9):
-            raise InputError(
-                f"fe_model block size {extent.tolist()} differs from the MJCF box {list(scene.scenario.size)}")
-        self.state: State = initial_state(self.model)
-        self.reports: list[StepReport] = []
-        self.control_period = float(control_period)
-        self.step_wall: list[float] = []
-        self._attach_block(find_object(mj_model, mj.mjtObj.mjOBJ_BODY, scene.block_body, "block body"))
-        mj.mj_kinematics(mj_model, mj_data)
-        self._gkind, self._gid, pg, Rg = frame_of(mj_model, mj_data, gripper)
-        yaw_g = matrix_yaw(Rg)
-        self._offset = rz(-yaw_g) @ (scene.upper_centre - pg)
-        self._last = (scene.upper_centre.copy(), yaw_g)
-        self._next = mj_data.time + self.control_period
-        self.lower_displacement = np.zeros(3)  # FE frame, m
-        self.lower_yaw = 0.0
-        self.gripper_force = np.zeros(3)  # world, N: gripper on the block's upper face
-        self.contact_force = np.zeros(3)  # world, N: floor on the block (FE contact resultant)
-        self.contact_moment = np.zeros(3)  # world, N m: about the block body's centre of mass
-        self._write_pose()
-        mj.mj_forward(mj_model, mj_data)
-
-    def _attach_block(self, bid: int) -> None:
-        """Where the block pose is written: its mocap slot, or its free joint's qpos / qvel."""
-        mj, m = mujoco_module(), self.mj_model
-        self._bid = bid
-        self._mocap = int(m.body_mocapid[bid])
-        if self._mocap < 0:
-            jnt = int(m.body_jntadr[bid])
-            if m.body_jntnum[bid] != 1 or m.jnt_type[jnt] != mj.mjtJoint.mjJNT_FREE:
-                raise InputError(f"block body {self.scene.block_body!r} must have one free joint or be a mocap body")
-            self._qadr, self._vadr = int(m.jnt_qposadr[jnt]), int(m.jnt_dofadr[jnt])
-
-    def drive_pose(self) -> tuple[np.ndarray, float]:
-        """(world upper-face centre carried by the gripper (3,), gripper yaw) now."""
-        d = self.mj_data
-        if self._gkind == "body":
-            p, R = d.xpos[self._gid], d.xmat[self._gid].reshape(3, 3)
-        else:
-            p, R = d.site_xpos[self._gid], d.site_xmat[self._gid].reshape(3, 3)
-        yaw = matrix_yaw(R)
-        return p + rz(yaw) @ self._offset, yaw
-
-    def block_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """World (pos (3,), quat (4,)) of the block body for the current FE lower-face pose."""
-        return self.scene.body_pose(self.lower_displacement, self.lower_yaw)
-
-    def _measure_forces(self, rep: StepReport) -> None:
-        """The FE gripper force, contact resultant and its moment about the block's
-        centre of mass, world frame, from a converged step."""
-        mj, s = mujoco_module(), self.scene
-        mesh = self.model.mesh
-        points = s.lower_centre + s.to_world(mesh.nodes[mesh.lower] + rep.displacement[mesh.lower])
-        forces = s.to_world(rep.reaction_world)
-        pos, quat = self.block_pose()
-        com = np.zeros(3)
-        mj.mju_rotVecQuat(com, np.asarray(self.mj_model.body_ipos[self._bid], float), quat)
-        self.gripper_force = s.to_world(rep.upper_force)
-        self.contact_force = forces.sum(axis=0)
-        self.contact_moment = np.cross(points - (pos + com), forces).sum(axis=0)
-
-    def _write_pose(self) -> None:
-        pos, quat = self.block_pose()
-        d = self.mj_data
-        d.xfrc_applied[self._bid] = np.concatenate([self.contact_force, self.contact_moment])
-        if self.mj_model.nuserdata >= USERDATA_SIZE:
-            for key, where in USERDATA_LAYOUT.items():
-                d.userdata[where] = getattr(self, key)
-        if self._mocap >= 0:
-            d.mocap_pos[self._mocap], d.mocap_quat[self._mocap] = pos, quat
-        else:
-            d.qpos[self._qadr:self._qadr + 3], d.qpos[self._qadr + 3:self._qadr + 7] = pos, quat
-            d.qvel[self._vadr:self._vadr + 6] = 0.0
-
-    def update(self) -> StepReport | None:
-        """Call after each ``mj_step``: runs :meth:`control` when a period is due
-        (returns its report), otherwise holds the block pose (returns None)."""
-        if self.mj_data.time + 0.5 * self.mj_model.opt.timestep < self._next:
-            self._write_pose()
-            return None
-        return self.control()
-
-    def control(self) -> StepReport:
-        """One control period now: gripper motion -> FE step -> block pose into MuJoCo."""
-        mj = mujoco_module()
-        t0 = time.perf_counter()
-        mj.mj_kinematics(self.mj_model, self.mj_data)
-        centre, yaw = self.drive_pose()
-        d = self.scene.to_fe(centre - self._last[0])
-        run = drive(self.model, [Command(d[0], d[1], d[2], wrap_angle(yaw - self._last[1]))], self.state)
-        rep = run.reports[-1]
-        self.reports.append(rep)
-        if rep.converged:  # otherwise the next period retries from the last good state
-            self.state, self._last = run.state, (centre, yaw)
-            self.lower_displacement = np.array(rep.lower_centroid, float)
-            self.lower_yaw = float(rep.lower_yaw)
-            self._measure_forces(rep)
-        self._next += self.control_period
-        self._write_pose()
-        mj.mj_forward(self.mj_model, self.mj_data)
-        self.step_wall.append(time.perf_counter() - t0)
-        return rep
 
 
 @dataclass(frozen=True)
@@ -310,13 +139,10 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
     startup = warm_up()  # the compiled kernels, loaded before the loop as a controller would
     t0 = time.perf_counter()
     for k in range(len(commands)):
-        rep = None
         for j in range(1, n_sub + 1):
             d.mocap_pos[mocap], d.mocap_quat[mocap] = traj.at(k, j / n_sub)
             mj.mj_step(m, d)
-            rep = coupler.update() or rep
-        if rep is None:  # a bug: control_period is a multiple of the timestep
-            raise RuntimeError(f"no control step in period {k + 1}")
+        rep = coupler.couple()
         low, _, yaw = block_geom_pose(m, d, scene)
         periods.append(CosimPeriod(
             k + 1, float(d.time), rep, traj.upper_centre[k + 1],

@@ -1,0 +1,128 @@
+"""Two-way coupling in a user's own MuJoCo loop (issue 33): the example gantry arm
+pushing the FE block, and a hand-written ``mj_step`` + ``couple()`` loop against
+``pushplan mujoco cosim``.
+
+Expected values come from MuJoCo's own state (geom poses, sensor data, joint
+positions, the actuators' gain) and the FE reports, never from the coupler's output
+alone."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from fe_contact import Command
+from pushplan.cli import main
+from pushplan.errors import InputError
+from pushplan.mujoco import attach, open_scene, run_cosimulation
+from pushplan.mujoco.scene import block_geom_pose
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM_TOML = ROOT / "scenarios" / "mujoco_arm.toml"
+ARM_XML = ROOT / "scenarios" / "mujoco_arm.xml"
+PUSH_TOML = ROOT / "scenarios" / "mujoco_push.toml"
+TINY = (2, 2, 1)
+HOLD_TOL = 1e-9       # m, block pose in MuJoCo vs the FE's, inside every period
+SENSOR_REL = 1e-6     # wrist sensor vs the FE gripper force, relative
+SAME_POSE = 1e-9      # m, user loop vs cosim
+
+
+def _arm_run(periods: int | None = None):
+    """The arm scene's planned push through a user loop: position/PD actuators track
+    the planned hand path (linear within a period), ``couple()`` once per period."""
+    scene, settings = open_scene(ARM_TOML)
+    m = mujoco.MjModel.from_xml_path(str(ARM_XML))
+    d = mujoco.MjData(m)
+    coupler = attach(m, d, scene, gripper="hand", fe_model=scene.scenario.model(elements=TINY))
+    commands = scene.scenario.commands[:periods]
+    plan = np.vstack([np.zeros(3), np.cumsum(scene.to_world([[c.dx, c.dy, c.dz] for c in commands]), axis=0)])
+    n_sub = round(settings.control_period / m.opt.timestep)
+    site = m.site("wrist").id
+    out = {"hold": 0.0, "sensor": 0.0, "tracking": 0.0}
+    for k in range(len(commands)):
+        for j in range(1, n_sub + 1):
+            d.ctrl[:] = plan[k] + (plan[k + 1] - plan[k]) * j / n_sub
+            mujoco.mj_step(m, d)
+            low, _, yaw = block_geom_pose(m, d, scene)
+            fe_low = scene.lower_centre + scene.to_world(coupler.lower_displacement)
+            out["hold"] = max(out["hold"], np.abs(low - fe_low).max(), abs(yaw - scene.yaw - coupler.lower_yaw))
+            # the wrist sensor, in the world frame, against the FE gripper force in force
+            force = d.site_xmat[site].reshape(3, 3) @ d.sensordata[0:3]
+            ref = coupler.gripper_force
+            out["sensor"] = max(out["sensor"], np.linalg.norm(force - ref) / np.linalg.norm(ref)) if k else 0.0
+        rep = coupler.couple()
+        assert rep.converged, rep.message
+        out["tracking"] = max(out["tracking"], np.abs(d.qpos[7:10] - plan[k + 1]).max())
+    return m, d, scene, coupler, plan, out
+
+
+def test_arm_pushes_the_fe_block_over_200_periods():
+    m, d, scene, coupler, plan, out = _arm_run()
+    assert len(coupler.reports) == 200
+    assert out["hold"] <= HOLD_TOL
+    assert out["sensor"] <= SENSOR_REL
+    # the arm feels the block: at rest its joints sit off their reference by the FE reaction / kp
+    kp = m.actuator_gainprm[:, 0]
+    np.testing.assert_allclose(d.qpos[7:10] - plan[-1], -coupler.gripper_force / kp, rtol=1e-3)
+    assert np.linalg.norm(coupler.gripper_force) > 1.0  # N: a real push, not a graze
+    # and tracks the planned push: 3 mm at 30 deg, within the compliance F / kp
+    travel = np.linalg.norm(plan[-1][:2])
+    assert travel == pytest.approx(3e-3, rel=1e-12)
+    assert out["tracking"] < 1.5 * np.abs(coupler.gripper_force).max() / kp.min() < 0.03 * travel
+    # the block slid (the FE lower face travelled most of the push)
+    assert np.linalg.norm(coupler.lower_displacement[:2]) > 0.5 * travel
+    print(f"\narm: hold {out['hold']:.2e} m, sensor {out['sensor']:.2e} rel, tracking {out['tracking']:.2e} m, "
+          f"final F_g {coupler.gripper_force} N, lower {coupler.lower_displacement * 1e3} mm")
+
+
+def test_a_user_loop_of_mj_step_and_couple_reproduces_cosim(tmp_path):
+    scene, settings = open_scene(PUSH_TOML)
+    fe = scene.scenario.model(elements=TINY)
+    commands = list(scene.scenario.commands)
+    period = 0.01
+    record = run_cosimulation(scene, commands, "gripper", period, fe)
+    # the user's loop: their mocap path (linear per command), mj_step, couple()
+    m = mujoco.MjModel.from_xml_path(scene.source)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    coupler = attach(m, d, scene, fe_model=scene.scenario.model(elements=TINY))
+    n_sub = round(period / m.opt.timestep)
+    for k, c in enumerate(commands):
+        start = d.mocap_pos[0].copy()
+        for j in range(1, n_sub + 1):
+            d.mocap_pos[0] = start + scene.to_world([c.dx, c.dy, c.dz]) * j / n_sub
+            mujoco.mj_step(m, d)
+        coupler.couple()
+        low, _, yaw = block_geom_pose(m, d, scene)
+        p = record.periods[k]
+        assert np.abs(low - p.mujoco_lower_centre).max() <= SAME_POSE
+        assert abs(yaw - p.mujoco_yaw) <= SAME_POSE / max(scene.scenario.size)
+    assert len(record.periods) == len(commands)
+    # and the CLI's cosim wrote those poses
+    toml = tmp_path / "push.toml"
+    toml.write_text(PUSH_TOML.read_text().replace('scene = "mujoco_push.xml"', f'scene = "{scene.source}"')
+                    .replace("control_period = 0.05", "control_period = 0.01"))
+    assert main(["mujoco", "cosim", str(toml), "--elements", *map(str, TINY), "--out", str(tmp_path / "c"),
+                 "--no-rerun"]) == 0
+    last = json.loads((tmp_path / "c" / "cosim.json").read_text())["periods"][-1]
+    assert np.abs(np.array(last["mujoco_lower_centre"]) - low).max() <= SAME_POSE
+
+
+def test_a_gripper_that_collides_with_the_block_is_refused(tmp_path):
+    text = ARM_XML.read_text().replace('<geom name="hand_pad" type="box"', '<geom name="hand_pad" type="box" '
+                                       'contype="1" conaffinity="1"')
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    scene, _ = open_scene(ARM_TOML)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    with pytest.raises(InputError, match="'hand_pad' collides with the block"):
+        attach(m, mujoco.MjData(m), scene, gripper="hand")
+    # excluded, it is accepted
+    path.write_text(text.replace("</contact>", '<exclude body1="hand" body2="block"/>\n  </contact>'))
+    m = mujoco.MjModel.from_xml_path(str(path))
+    attach(m, mujoco.MjData(m), scene, gripper="hand", fe_model=scene.scenario.model(elements=TINY))
