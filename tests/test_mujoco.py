@@ -201,6 +201,7 @@ def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     scene, settings = open_scene(SCENE_TOML)
     result = compare(scene, settings=settings, fe_model=scene.scenario.model(**COARSE), out_dir=tmp_path).to_dict()
     steps = {name: res["steps"][1:] for name, res in result["models"].items()}  # the four pushes
+    assert "cannot turn with the block" in result["limitations"][0]
     fe_twist = np.array([r["twist_deg"] for r in steps["fe"]])
     assert np.all(fe_twist > FE_TWIST_MIN_DEG)
     for r in steps["rigid_weld"]:

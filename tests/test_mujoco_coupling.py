@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
-from fe_contact import Command
 from pushplan.cli import main
 from pushplan.errors import InputError
 from pushplan.mujoco import attach, open_scene, run_cosimulation
@@ -126,3 +127,36 @@ def test_a_gripper_that_collides_with_the_block_is_refused(tmp_path):
     path.write_text(text.replace("</contact>", '<exclude body1="hand" body2="block"/>\n  </contact>'))
     m = mujoco.MjModel.from_xml_path(str(path))
     attach(m, mujoco.MjData(m), scene, gripper="hand", fe_model=scene.scenario.model(elements=TINY))
+
+
+def test_the_mjcf_density_gives_the_fe_weight_and_a_toml_density_wins_with_a_warning(tmp_path):
+    from pushplan.errors import InputWarning
+    from pushplan.mujoco import scene_from_mjcf
+
+    volume = 0.02 * 0.02 * 0.01
+    scene = scene_from_mjcf(ARM_XML)  # geom density="1100"
+    assert scene.scenario.model(elements=TINY).weight == pytest.approx(1100 * 9.81 * volume, rel=1e-12)
+    # a geom given by its mass: rho = m / V
+    path = tmp_path / "mass.xml"
+    path.write_text(ARM_XML.read_text().replace('density="1100"', 'mass="0.005"'))
+    assert scene_from_mjcf(path).scenario.model(elements=TINY).weight == pytest.approx(0.005 * 9.81, rel=1e-12)
+    # the scenario's density overrides, with one warning naming the key and both values
+    base = open_scene(ARM_TOML)[0].scenario
+    with pytest.warns(InputWarning, match=r"material.density = 1000 kg/m\^3 .* overrides .* 1100 kg/m\^3"):
+        s = scene_from_mjcf(ARM_XML, base=replace(base, density=1000.0))
+    assert s.scenario.density == 1000.0 and "material.density" not in s.from_mjcf
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        same = scene_from_mjcf(ARM_XML, base=replace(base, density=1100.0))
+    assert same.scenario.density == 1100.0
+
+
+def test_unnamed_geoms_get_their_body_name_in_recording_paths():
+    from pushplan.mujoco.cosim import _boxes
+
+    m = mujoco.MjModel.from_xml_path(str(ARM_XML))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    names = set(_boxes(m, d))
+    assert {"block_geom", "hand_pad", "carriage_x_geom2", "carriage_y_geom3"} <= names
+    assert not any(n.startswith("#") for n in names)

@@ -198,8 +198,12 @@ def test_cosimulation_writes_the_fe_forces_into_userdata_and_the_reaction_on_the
         contact = R0 @ rep.reaction_world.sum(axis=0)
         points = np.array([X0, Y0, 0.0]) + (fe.mesh.nodes[lower] + rep.displacement[lower]) @ R0.T
         moment = np.cross(points - d.xipos[bid], rep.reaction_world @ R0.T).sum(axis=0)  # about MuJoCo's CoM
-        # the steel block has no density here: the gripper's moment balances the contact's
-        grip_moment = -np.cross(points - d.xipos[gid], rep.reaction_world @ R0.T).sum(axis=0)
+        # the gripper's moment balances the contact's and the self-weight's (MJCF density)
+        nodes = np.array([X0, Y0, 0.0]) + (fe.mesh.nodes + rep.displacement) @ R0.T
+        weight = fe.body_force.reshape(-1, 3) @ R0.T
+        assert weight[:, 2].sum() == pytest.approx(-7850 * 9.81 * 0.02 * 0.02 * 0.01, rel=1e-12)
+        grip_moment = -(np.cross(points - d.xipos[gid], rep.reaction_world @ R0.T).sum(axis=0)
+                        + np.cross(nodes - d.xipos[gid], weight).sum(axis=0))
         for written, expected in ((d.userdata[0:3], gripper), (d.userdata[3:6], contact),
                                   (d.userdata[6:9], moment), (d.xfrc_applied[gid, :3], -gripper),
                                   (d.xfrc_applied[gid, 3:], -grip_moment)):

@@ -42,6 +42,10 @@ def _fe_model(args, scene):
 def cmd_import(args) -> int:
     import math
 
+    from fe_contact import GRAVITY
+
+    from .units import engineering
+
     scene, _ = _scene(args)
     s = scene.scenario
     print(f"block {scene.block_body!r} ({scene.block_geom}): size {[round(v * 1e3, 6) for v in s.size]} mm, "
@@ -50,7 +54,8 @@ def cmd_import(args) -> int:
     print(f"rest pose (world, the FE frame's origin): lower-face centre {c[0]:.6g}, {c[1]:.6g}, {c[2]:.6g} mm, "
           f"yaw {math.degrees(scene.yaw):.6g} deg")
     print(f"friction ({scene.pair or 'dynamic contact'}): mu_x = {s.mu_x}, mu_y = {s.mu_y}, angle = {s.angle_deg} deg")
-    print(f"material: E = {s.young:.4g} Pa, nu = {s.poisson}")
+    print(f"material: E = {s.young:.4g} Pa, nu = {s.poisson}, density = {s.density:.6g} kg/m^3 "
+          f"(FE self-weight rho g V = {engineering(s.density * GRAVITY * math.prod(s.size), 'N')})")
     for k, v in scene.from_mjcf.items():
         print(f"  from MJCF: {k} <- {v}")
     for k, v in scene.not_from_mjcf.items():
@@ -63,7 +68,7 @@ def cmd_import(args) -> int:
 def cmd_compare(args) -> int:
     import math
 
-    from ..mujoco.compare import MODEL_NOTES, compare
+    from ..mujoco.compare import MODEL_NOTES, PAIR_AXES_LIMITATION, compare
     from ..outputs.transaction import output_transaction
 
     scene, settings = _scene(args)
@@ -81,6 +86,7 @@ def cmd_compare(args) -> int:
         lo = last.lower * 1e3
         print(f"{name:>15} {lo[0]:>9.4f},{lo[1]:>9.4f} {math.degrees(last.lower_yaw):>8.3f}° "
               f"{math.degrees(last.twist):>8.3f}° {math.degrees(last.deviation):>9.3f}° {run.wall_s:>6.2f}s")
+    print(f"note: {PAIR_AXES_LIMITATION}")
     print(f"wrote {out / 'comparison.json'} and {out / 'comparison.png'}")
     return 0
 

@@ -2,7 +2,7 @@
 (:func:`compare`), the result as typed data (:class:`Comparison`) and its plot.
 
 ``comparison.json`` holds ``scene``, ``settings`` (the ``[mujoco]`` table),
-``flex_mu``, ``commands`` and per model ``description``, ``wall_s``, ``summary``
+``flex_mu``, ``commands``, ``limitations`` (:data:`PAIR_AXES_LIMITATION`) and per model ``description``, ``wall_s``, ``summary``
 (final and largest twist / deviation, final lower-face displacement) and ``steps``
 (:class:`~pushplan.mujoco.records.ComparisonStep`, world frame, m / degrees).
 """
@@ -39,6 +39,13 @@ MODEL_NOTES = {
     "flex_isotropic": "MuJoCo 3D flex of the block's size and material, top pinned to the gripper, "
                       "isotropic friction flex_mu (MuJoCo flex contacts take no anisotropy)",
 }
+
+PAIR_AXES_LIMITATION = (
+    "MuJoCo's <pair> friction axes are fixed in the world (t1 = world +y, t2 = world -x, from the contact "
+    "normal alone): they cannot turn with the block, so rigid_weld and rigid_force keep the friction ellipse "
+    "world-aligned whatever the box's yaw; the FE friction axes are those of the floor, at the imported angle"
+)
+"""What ``compare`` states with every result (``comparison.json`` ``limitations``, terminal)."""
 
 
 @dataclass(frozen=True)
@@ -81,7 +88,7 @@ class Comparison:
     def to_dict(self) -> dict:
         """The ``comparison.json`` form."""
         return {"scene": self.scene.to_dict(), "settings": self.settings.to_dict(), "flex_mu": self.flex_mu,
-                "commands": commands_to_list(self.commands),
+                "commands": commands_to_list(self.commands), "limitations": [PAIR_AXES_LIMITATION],
                 "models": {name: run.to_dict() for name, run in self.models.items()}}
 
 

@@ -19,7 +19,7 @@ from ..config.commands import command_to_dict
 from ..errors import InputError
 from ..run.summary import RunStatus, StepSummary
 from .coupling import USERDATA_LAYOUT, CoSimulation
-from .mjmodel import mocap_index, mujoco_module, object_name
+from .mjmodel import geom_label, mocap_index, mujoco_module
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory
 
@@ -72,7 +72,7 @@ def _boxes(m, d) -> dict:
     for g in np.flatnonzero(m.geom_type == mj.mjtGeom.mjGEOM_BOX):
         quat = np.zeros(4)
         mj.mju_mat2Quat(quat, d.geom_xmat[g])
-        out[object_name(m, mj.mjtObj.mjOBJ_GEOM, int(g))] = (d.geom_xpos[g].copy(), quat, m.geom_size[g].copy())
+        out[geom_label(m, int(g))] = (d.geom_xpos[g].copy(), quat, m.geom_size[g].copy())
     return out
 
 

@@ -27,6 +27,17 @@ def object_name(m, objtype, i: int) -> str:
     return name if name else f"#{i}"
 
 
+def geom_label(m, g: int) -> str:
+    """A name for geom ``g`` usable in a recording path: its own, else ``<body>_geom<g>``
+    (``body<b>_geom<g>`` when the body is unnamed too)."""
+    mj = mujoco_module()
+    name = mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, g)
+    if name:
+        return name
+    b = int(m.geom_bodyid[g])
+    return f"{mj.mj_id2name(m, mj.mjtObj.mjOBJ_BODY, b) or f'body{b}'}_geom{g}"
+
+
 def find_object(m, objtype, name: str, what: str) -> int:
     """Id of the object called ``name`` (or ``"#id"``, as :func:`object_name` writes it).
 

@@ -25,16 +25,17 @@ pose (at ``qpos0``) fixes that frame in the world: origin at the lower-face cent
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from fe_contact import SolverOptions
+from fe_contact import GRAVITY, SolverOptions
 
 from ..config.mujoco import BridgeSettings, bridge_settings
 from ..config.scenario import Scenario, load_scenario
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from .frames import matrix_yaw, quat_mul, quat_z, rz
 from .mjmodel import find_object, load_model, mujoco_module, object_name
 
@@ -346,9 +347,34 @@ def _box_on_plane(m, d, bgeom: int, fgeom: int, floor: str) -> tuple[tuple[float
     return size, matrix_yaw(Rb), d.geom_xpos[bgeom] - np.array([0.0, 0.0, size[2] / 2])
 
 
+def _density(m, bbody: int, size, base: Scenario | None, from_mjcf: dict, notes: list) -> float:
+    """Block density, kg/m^3: the MJCF block body's mass over the box volume (a geom's
+    ``density`` or ``mass``, or the body's ``<inertial mass>``), unless the scenario
+    TOML gives ``material.density`` > 0, which wins (an ``InputWarning`` when it differs).
+    The FE self-weight is then ``rho g V`` (``fe_contact`` gravity); a MuJoCo gravity of
+    another size is noted."""
+    mj = mujoco_module()
+    rho = float(m.body_mass[bbody]) / math.prod(size)
+    from_mjcf["material.density"] = "block body mass / box volume"
+    g = float(np.linalg.norm(m.opt.gravity))
+    if not math.isclose(g, GRAVITY, rel_tol=1e-9):
+        notes.append(f"MuJoCo gravity {g:g} m/s^2; the FE self-weight uses {GRAVITY} m/s^2")
+    if base is None or base.density <= 0:
+        return rho
+    if not math.isclose(base.density, rho, rel_tol=1e-9):
+        body = object_name(m, mj.mjtObj.mjOBJ_BODY, bbody)
+        warnings.warn(InputWarning(
+            f"material.density = {base.density:g} kg/m^3 in the scenario overrides the MJCF block {body!r}'s "
+            f"{rho:g} kg/m^3 (body mass / box volume)"), stacklevel=3)
+    from_mjcf.pop("material.density")
+    return base.density
+
+
 def _scenario(path: str, base: Scenario | None, size, friction, material, notes: list) -> Scenario:
-    """The imported scenario: MJCF size, friction and material, the rest from ``base`` or defaults."""
+    """The imported scenario: MJCF size, friction and material (young, poisson,
+    density), the rest from ``base`` or defaults."""
     mu_x, mu_y, angle = friction
+    young, poisson, density = material
     if base is not None:
         for key, ours, theirs in (
             ("block.size", size, tuple(base.size)), ("friction.mu_x", mu_x, base.mu_x),
@@ -356,13 +382,11 @@ def _scenario(path: str, base: Scenario | None, size, friction, material, notes:
         ):
             if not np.allclose(ours, theirs, rtol=1e-9, atol=1e-12):
                 notes.append(f"scenario {key} {theirs} replaced by the MJCF value {ours}")
-        return Scenario(name=base.name, size=size, elements=tuple(base.elements), quadrature=base.quadrature,
-                        young=material[0], poisson=material[1], mu_x=mu_x, mu_y=mu_y, angle_deg=angle,
-                        commands=tuple(base.commands), solver=base.solver, description=base.description,
-                        extra=dict(base.extra))
+        return replace(base, size=size, young=young, poisson=poisson, density=density, mu_x=mu_x, mu_y=mu_y,
+                       angle_deg=angle)
     return Scenario(name=Path(path).stem if path else "mjcf", size=size, elements=DEFAULT_ELEMENTS,
-                    quadrature=DEFAULT_QUADRATURE, young=material[0], poisson=material[1], mu_x=mu_x, mu_y=mu_y,
-                    angle_deg=angle, commands=(), solver=SolverOptions(local_method="newton"),
+                    quadrature=DEFAULT_QUADRATURE, young=young, poisson=poisson, density=density, mu_x=mu_x,
+                    mu_y=mu_y, angle_deg=angle, commands=(), solver=SolverOptions(local_method="newton"),
                     description=f"imported from {path or 'an MjModel'}", extra={})
 
 
@@ -382,7 +406,9 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
         material when the MJCF has no ``<custom><numeric name="pushplan_young">`` (Pa) /
         ``"pushplan_poisson"``.  ``"pushplan_friction_angle"`` (deg) turns the friction
         axes (see the module docstring).  MJCF values replace the base's size and friction
-        (differences are listed in ``notes``).
+        (differences are listed in ``notes``).  The density is the block body's mass over
+        the box volume unless the base gives one (> 0), which wins with an ``InputWarning``
+        when it differs.
 
     Returns
     -------
@@ -407,7 +433,7 @@ def scene_from_mjcf(source, block: str = "block", floor: str = "floor", base: Sc
     if _numeric(m, NUMERIC_FRICTION_ANGLE) is not None:
         from_mjcf["friction.angle_deg"] += f", turned by <numeric name='{NUMERIC_FRICTION_ANGLE}'>"
     not_from: dict[str, str] = {}
-    material = _material(m, base, from_mjcf, not_from)
+    material = (*_material(m, base, from_mjcf, not_from), _density(m, bbody, size, base, from_mjcf, notes))
     not_from.update(dict.fromkeys(("block.elements", "block.quadrature", "solver", "load"),
                                   "scenario" if base is not None else "default"))
     scenario = _scenario(path, base, size, (mu_x, mu_y, angle), material, notes)
