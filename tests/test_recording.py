@@ -33,8 +33,8 @@ REPLAY_TOL = 1e-9  # m: same commands, same model -> same lower-face centroid to
 FLOAT32_TOL = 1e-8  # m: rerun stores positions as float32 (~1e-7 relative of 0.01 m)
 ENTITIES = (
     "/world/block", "/world/upper_face", "/world/lower_face", "/world/contact",
-    "/plots/twist_deg", "/plots/lower_yaw_deg", "/plots/normal_force", "/plots/tangential_force",
-    "/plots/newton_iterations", "/plots/contact_iterations",
+    "/plots/lower_yaw_deg", "/plots/normal_force", "/plots/tangential_force", "/plots/gripper_force",
+    "/plots/newton_iterations", "/plots/contact_iterations", "/plots/lower_direction_deviation_deg",
 )
 
 SCENARIO = """
@@ -96,19 +96,26 @@ def test_entity_paths_and_step_count(files):
     rrd = files["run"] / "recording.rrd"
     paths = {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
     assert set(ENTITIES) <= paths
-    for entity in ENTITIES[4:]:
+    for entity in ENTITIES[4:-1]:  # the direction deviation has no point while the lower face sticks
         steps, _ = column(rrd, entity, "Scalars:scalars")
         assert steps == list(range(1, N_STEPS + 1)), entity
     assert not list(files["run"].glob(".recording.rrd.*"))  # temporary file renamed
 
 
-def test_twist_and_forces_equal_summary(files):
+def test_direction_deviation_and_forces_equal_summary(files):
     rrd = files["run"] / "recording.rrd"
     steps = summary_steps(files["run"])
-    _, twist = column(rrd, "/plots/twist_deg", "Scalars:scalars")
-    assert [t[0] for t in twist] == [s["twist_deg"] for s in steps]
+    at, twist = column(rrd, "/plots/lower_direction_deviation_deg", "Scalars:scalars")
+    defined = [(s["step"], s["lower_direction_deviation_deg"]) for s in steps
+               if s["lower_direction_deviation_deg"] is not None]
+    assert list(zip(at, [t[0] for t in twist])) == defined
+    assert steps[0]["lower_direction_deviation_deg"] is None and steps[0]["twist_deg"] is None  # the press
+    assert all(s["twist_deg"] == s["lower_direction_deviation_deg"] for s in steps)  # the alias
     _, normal = column(rrd, "/plots/normal_force", "Scalars:scalars")
     assert [n[0] for n in normal] == [s["normal_force"] for s in steps]
+    _, grip = column(rrd, "/plots/gripper_force", "Scalars:scalars")  # the wrist force
+    assert [list(g) for g in grip] == [s["upper_force"] for s in steps]
+    assert all(s["phase"] == "command" for s in steps)
     # physics: elliptic friction with mu_x != mu_y twists the 45-degree push
     assert abs(twist[-1][0]) > 1.0
 
@@ -172,7 +179,7 @@ def test_replay_plan_with_other_friction(files, capsys):
     assert dev == pytest.approx(np.linalg.norm(a - b, axis=1).max(), rel=1e-6)
     assert dev > 1e-6  # micrometres apart, not solver noise
     # physics: isotropic friction and a symmetric block: the lower face follows the push
-    assert max(abs(s["twist_deg"]) for s in iso_steps[1:]) < 0.01
+    assert max(abs(s["lower_direction_deviation_deg"]) for s in iso_steps[1:]) < 0.01
     assert json.loads((out / "replay.json").read_text())["max_deviation_m"] == pytest.approx(dev, rel=1e-6)
 
 

@@ -13,7 +13,7 @@ from pushplan.config.files import read_toml
 REST_FORCE_RTOL = 1e-8  # issue: in-plane contact forces at rest <= 1e-8 of the weight
 REST_POSE_RTOL = 1e-6  # issue: lift rest pose = commanded motion to 1e-6 of the lag
 REST_KEYS = {"mode", "lower_centroid", "lower_yaw_deg", "upper_centroid", "normal_force", "tangential_force",
-             "strain_energy", "status"}
+             "strain_energy", "status", "step"}
 
 RUBBER = """
 name = "rubber"

@@ -100,7 +100,7 @@ def cmd_cosim(args) -> int:
     from ..outputs.atomic import atomic_write_json
     from ..outputs.transaction import output_transaction
     from ..run.summary import RunStatus, StepSummary
-    from .units import engineering, twist_text
+    from .units import deviation_text, engineering
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
@@ -118,9 +118,9 @@ def cmd_cosim(args) -> int:
         lo = (np.asarray(p.lower_centre) - scene.lower_centre) * 1e3
         f = np.where(np.abs(p.gripper_force) > 1e-9 * np.linalg.norm(p.gripper_force), p.gripper_force, 0.0)
         force = ", ".join(engineering(float(v), "N") for v in f)  # rounding-level components shown as 0
-        twist = twist_text(StepSummary.from_report(rep)) if rep.converged else "-"
+        deviation = deviation_text(StepSummary.from_report(rep)) if rep.converged else "-"
         print(f"period {p.period:>3} t = {p.time:.3f} s  lower {lo[0]:8.4f},{lo[1]:8.4f} mm  "
-              f"yaw {math.degrees(p.lower_yaw - scene.yaw):7.3f}°  twist {twist:>8}  "
+              f"yaw {math.degrees(p.lower_yaw - scene.yaw):7.3f}°  lower dev. {deviation:>8}  "
               f"F {force}  FE {rep.wall_time * 1e3:6.1f} ms")
     print(f"co-simulation rate: {record.rate_periods_per_s:.2f} control periods/s "
           f"({len(record.periods)} periods, {record.steps_per_period} MuJoCo steps each, "

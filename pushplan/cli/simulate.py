@@ -20,15 +20,18 @@ def add_memory_flag(parser) -> None:
 
 def print_steps(steps) -> None:
     """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, N); the
-    twist is ``-`` while the lower face sticks (:func:`~pushplan.cli.units.twist_text`)."""
-    from .units import engineering, twist_text
+    lower face's direction deviation ("lower dev.", from the upper face's direction) is
+    ``-`` while the lower face sticks (:func:`~pushplan.cli.units.deviation_text`); release
+    steps are marked ``R``."""
+    from .units import deviation_text, engineering
 
-    print(f"{'step':>4} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'twist':>9} {'yaw':>9} "
+    print(f"{'step':>5} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'lower dev.':>10} {'yaw':>9} "
           f"{'normal force':>12} {'max slip':>9} {'newton':>6} {'contact':>7}")
     for s in steps:
         u, lo = s.upper_centroid, s.lower_centroid
-        print(f"{s.step:>4} {u[0]*1e3:>8.4f},{u[1]*1e3:>8.4f} {lo[0]*1e3:>8.4f},{lo[1]*1e3:>8.4f} "
-              f"{twist_text(s):>9} {s.lower_yaw_deg:>8.4f}° {engineering(s.normal_force, 'N'):>12} "
+        mark = "R" if s.phase == "release" else " "
+        print(f"{s.step:>4}{mark} {u[0]*1e3:>8.4f},{u[1]*1e3:>8.4f} {lo[0]*1e3:>8.4f},{lo[1]*1e3:>8.4f} "
+              f"{deviation_text(s):>10} {s.lower_yaw_deg:>8.4f}° {engineering(s.normal_force, 'N'):>12} "
               f"{s.max_slip*1e3:>7.4f}mm {s.newton_iterations:>6} {s.contact_iterations:>7}")
 
 
@@ -38,7 +41,7 @@ def print_rest(summary) -> None:
     if rest is None:
         return
     lo = rest.lower_centroid
-    print(f"at rest after the {rest.mode} release: lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
+    print(f"at rest after the {rest.mode} release (step {rest.step}, R = release steps): lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
           f"yaw {rest.lower_yaw_deg:.4f}°, normal force {rest.normal_force:.4g} N, "
           f"strain energy {rest.strain_energy:.3g} J (the steps before the release are the loaded poses)")
 

@@ -6,9 +6,6 @@ from __future__ import annotations
 import math
 
 _PREFIXES = {-12: "p", -9: "n", -6: "u", -3: "m", 0: "", 3: "k", 6: "M", 9: "G", 12: "T"}
-TWIST_MIN_MOTION = 0.01
-"""Lower-face travel, as a fraction of the upper face's, below which the block sticks and
-the twist (the angle between the two travels) is the direction of a rounding error."""
 
 
 def engineering(value: float, unit: str, digits: int = 4) -> str:
@@ -20,11 +17,9 @@ def engineering(value: float, unit: str, digits: int = 4) -> str:
     return f"{value / 10**exponent:.{digits}g} {_PREFIXES[exponent]}{unit}"
 
 
-def twist_text(step) -> str:
-    """The twist of a :class:`~pushplan.run.StepSummary` in degrees, or ``-`` while the
-    lower face has not moved (by less than :data:`TWIST_MIN_MOTION` of the upper face)."""
-    upper = math.hypot(*step.upper_centroid[:2])
-    lower = math.hypot(*step.lower_centroid[:2])
-    if upper == 0 or lower < TWIST_MIN_MOTION * upper:
-        return "-"
-    return f"{step.twist_deg:.3f}°"
+def deviation_text(step) -> str:
+    """The lower face's direction deviation of a :class:`~pushplan.run.StepSummary` in
+    degrees, or ``-`` where ``summary.json`` has ``null`` (the lower face has not moved:
+    :data:`pushplan.run.summary.DIRECTION_MIN_MOTION`)."""
+    value = step.lower_direction_deviation_deg
+    return "-" if value is None else f"{value:.3f}°"

@@ -50,12 +50,15 @@ class CosimPeriod:
     control_wall_s: float
 
     def to_dict(self) -> dict:
-        """World-frame poses and forces; the FE-frame command and pose under ``fe_frame``."""
+        """World-frame poses and forces; the FE-frame command and pose under ``fe_frame``;
+        ``lower_direction_deviation_deg`` as in ``summary.json`` (null while the lower face sticks)."""
         rep = self.report
+        deviation = StepSummary.from_report(rep).lower_direction_deviation_deg if rep.converged else None
         return {
             "period": self.period, "time": self.time, "status": rep.status.value,
             "gripper_centre": self.gripper_centre, "lower_centre": self.lower_centre,
-            "lower_yaw_deg": math.degrees(self.lower_yaw), "twist_deg": math.degrees(rep.twist),
+            "lower_yaw_deg": math.degrees(self.lower_yaw), "lower_direction_deviation_deg": deviation,
+            "twist_deg": deviation,  # the name before issue 33, kept one release
             "mujoco_lower_centre": self.mujoco_lower_centre, "mujoco_yaw_deg": math.degrees(self.mujoco_yaw),
             "gripper_force": self.gripper_force, "contact_force": self.contact_force,
             "contact_moment": self.contact_moment,

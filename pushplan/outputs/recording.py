@@ -31,9 +31,15 @@ Entities (``Archetype:field`` columns in the file)::
     run/colour_scale     AnyValues per step: ``field``, ``low``, ``high`` (SI) of the
                          colour scale and ``arrow_m_per_n``; the same at every step.
     legend               TextDocument per step: colour scale and arrow scale.
-    plots/twist_deg, plots/lower_yaw_deg, plots/normal_force (N),
-    plots/tangential_force (N, x and y), plots/newton_iterations,
-    plots/contact_iterations    Scalars per step.
+    plots/lower_direction_deviation_deg (angle from the upper- to the lower-face
+    centroid travel; no point while the lower face sticks, ``null`` in summary.json),
+    plots/lower_yaw_deg, plots/normal_force (N), plots/tangential_force (N, x and y:
+    the floor's friction force on the block), plots/gripper_force (N, x, y, z: the
+    force the gripper applies on the upper face, what a wrist force sensor reads),
+    plots/newton_iterations, plots/contact_iterations    Scalars per step.
+    run/phase            AnyValues per step: ``phase`` = ``command`` or ``release``.
+    markers              TextLog: ``release`` at the first release step, ``rest`` at
+                         the step where the block is at rest (:meth:`Recorder.log_rest`).
     log                  TextLog: one line per step, errors for failed steps.
     run/info             TextDocument (static): JSON ``{"run_name", "field", "scenario"}``.
     run/step             AnyValues per step: the command ``dx, dy, dz`` (m),
@@ -104,8 +110,13 @@ _NAMESPACE = uuid.UUID("5f0d4f52-3c1e-4a8b-9a59-8f2b7d2f6a10")  # fixed: recordi
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
 _GREY = np.array([170, 170, 170], np.uint8)
 _STATUS_CLASSES = ((0, "stick", (40, 160, 70)), (1, "slip", (230, 120, 20)), (2, "separated", (140, 140, 140)))
-_PLOTS = ("twist_deg", "lower_yaw_deg", "normal_force", "tangential_force", "newton_iterations",
-          "contact_iterations")
+_PLOTS = ("lower_direction_deviation_deg", "lower_yaw_deg", "normal_force", "tangential_force", "gripper_force",
+          "newton_iterations", "contact_iterations")
+_PLOT_SOURCE = {"gripper_force": "upper_force"}  # plot name -> StepSummary attribute, where they differ
+
+
+def _degrees_text(value: float | None) -> str:
+    return "- (the lower face has not moved)" if value is None else f"{value:.4f} deg"
 
 
 def recording_id(run_name: str) -> str:
@@ -226,10 +237,12 @@ class Recorder:
         log("world/block", rr.Mesh3D.from_fields(triangle_indices=self._triangles), static=True)
         log("world/contact", rr.AnnotationContext(list(_STATUS_CLASSES)), static=True)
         log("plots/tangential_force", rr.SeriesLines(names=["x", "y"]), static=True)
+        log("plots/gripper_force", rr.SeriesLines(names=["x", "y", "z"]), static=True)
         log("world/floor", scene.floor(rr, mesh.size), static=True)
         if spec is not None and "friction" in spec:
             log("world/friction", *scene.friction_ellipse(rr, mesh.size, spec["friction"]), static=True)
         self._closed = False
+        self._phase = "command"
         self._log_reference()
 
     # -- blueprint ---------------------------------------------------------------------
@@ -368,14 +381,22 @@ class Recorder:
         """Plots, the replayable ``run/step`` row and the log line."""
         rr, c, log = self._rr, report.command, self.stream.log
         for p in _PLOTS:
-            log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(getattr(summary, p), float))))
+            value = getattr(summary, _PLOT_SOURCE.get(p, p))
+            if value is not None:  # a sticking lower face has no direction: no point
+                log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(value, float))))
+        phase = getattr(summary, "phase", "command")
+        log("run/phase", rr.AnyValues(phase=phase))
+        if phase == "release" and self._phase != "release":
+            log("markers", rr.TextLog(f"release: step {report.step_index} is the first release step"))
+        self._phase = phase
         log("run/step", rr.AnyValues(
             **command_to_dict(c),
             lower_centroid=np.asarray(report.lower_centroid, float),
             upper_centroid=np.asarray(report.upper_centroid, float)))
         log("log", rr.TextLog(
             f"step {report.step_index}: command ({c.dx:.6g}, {c.dy:.6g}, {c.dz:.6g}) m, "
-            f"{math.degrees(c.dtheta):.6g} deg; twist {summary.twist_deg:.4f} deg, "
+            f"{math.degrees(c.dtheta):.6g} deg; lower-face direction deviation "
+            f"{_degrees_text(summary.lower_direction_deviation_deg)}, "
             f"lower yaw {summary.lower_yaw_deg:.4f} deg, N {summary.normal_force:.6g} N, "
             f"newton {report.newton_iterations}, contact {report.contact_iterations}",
             level=rr.TextLogLevel.INFO))
@@ -448,6 +469,16 @@ class Recorder:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path)) from exc
 
     # -- closing -----------------------------------------------------------------------
+    def log_rest(self, rest) -> None:
+        """Mark the step at which the block is at rest after a release
+        (:class:`pushplan.run.summary.RestSummary`) on the ``markers`` log."""
+        self._set_step(rest.step)
+        lo = rest.lower_centroid
+        self.stream.log("markers", self._rr.TextLog(
+            f"rest: after the {rest.mode} release, step {rest.step}, lower face ({lo[0]:.6g}, {lo[1]:.6g}) m, "
+            f"yaw {rest.lower_yaw_deg:.6g} deg"))
+        self._flush()
+
     def close(self) -> Path:
         """Flush, disconnect and move the finished file into place; returns its path."""
         if not self._closed:

@@ -117,7 +117,7 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
             new_state, report = step(model, run.state, command, local_problem_hook=hook,
                                      consume=owns_start or i > 0)
             run.reports.append(report)
-            _record(run, new_state, report, keep_states)
+            _record(run, new_state, report, keep_states, "command" if i < len(commands) else "release")
             run.summary.elapsed_s = time.perf_counter() - t0
             for o in observers:
                 o.step(run, report)
@@ -144,10 +144,10 @@ def _commands(model: Model, commands: tuple, release: Release | None, run: Run):
         yield command
 
 
-def _record(run: Run, new_state: State, report: StepReport, keep_states: bool) -> None:
+def _record(run: Run, new_state: State, report: StepReport, keep_states: bool, phase: str) -> None:
     if report.converged:
         run.state = new_state
-        run.summary.steps.append(StepSummary.from_report(report))
+        run.summary.steps.append(StepSummary.from_report(report, phase))
         if keep_states:
             run.states.append(new_state)
     else:

@@ -68,6 +68,10 @@ class RecordingFile:
     def step(self, run, report: StepReport) -> None:
         self.recorder.log_step(report, run.summary.steps[-1] if report.converged else None)
 
+    def finish(self, run) -> None:
+        if run.summary.rest is not None:
+            self.recorder.log_rest(run.summary.rest)
+
     def close(self, run) -> None:
         self.recorder.close()
 

@@ -2,7 +2,24 @@
 into dicts only at the file boundary (``summary.json``).
 
 ``StepSummary``  the numbers of one converged step (SI units; angles in degrees in
-                 the file, radians here).
+                 the file, radians here), and its ``phase`` (``command`` or ``release``).
+
+Names in ``summary.json`` (per step):
+
+``lower_direction_deviation_deg``
+    Signed angle from the upper-face to the lower-face in-plane centroid displacement
+    (where the lower face went, against where the gripper took the upper face);
+    ``null`` while the lower face has not moved (less than
+    :data:`DIRECTION_MIN_MOTION` of the upper face's travel: a block that sticks has no
+    direction of motion, the terminal shows ``-``).
+``twist_deg``
+    The same value under its name before issue 33; an alias kept for one release
+    (deprecated: read ``lower_direction_deviation_deg``).  The sweep's *lag* angle
+    (direction of the upper-minus-lower displacement) is a different quantity,
+    ``lag_angle_deg`` in the sweep table.
+``phase``
+    ``command`` for a scenario load step, ``release`` for a step of the release that
+    follows; ``rest.step`` (with a release) is the step at which the block is at rest.
 ``Failure``      the step that failed, its status and message.
 ``RunStatus``    ``running`` / ``completed`` / ``failed``.
 ``RestSummary``  where the block came to rest after a release.
@@ -21,6 +38,11 @@ import numpy as np
 from fe_contact import Command, NodeStatus, StepReport
 
 from ..config.commands import command_from_dict, command_to_dict
+
+DIRECTION_MIN_MOTION = 0.01
+"""Lower-face travel, as a fraction of the upper face's, below which the block sticks and
+the lower face's direction deviation (the angle between the two travels) is the
+direction of a rounding error: reported as ``null`` / ``-``."""
 
 
 class RunStatus(str, enum.Enum):
@@ -58,6 +80,7 @@ class StepSummary:
     contact_residual: float
     min_det_f: float
     wall_time_s: float
+    phase: str = "command"
 
     @property
     def converged(self) -> bool:
@@ -71,8 +94,18 @@ class StepSummary:
     def twist_deg(self) -> float:
         return math.degrees(self.twist)
 
+    @property
+    def lower_direction_deviation_deg(self) -> float | None:
+        """The lower face's direction deviation (``twist``) in degrees, or None while
+        the lower face has not moved (:data:`DIRECTION_MIN_MOTION`)."""
+        upper = math.hypot(*self.upper_centroid[:2])
+        lower = math.hypot(*self.lower_centroid[:2])
+        if upper == 0 or lower < DIRECTION_MIN_MOTION * upper:
+            return None
+        return self.twist_deg
+
     @classmethod
-    def from_report(cls, report: StepReport) -> StepSummary:
+    def from_report(cls, report: StepReport, phase: str = "command") -> StepSummary:
         in_contact = report.node_status != NodeStatus.SEPARATED
         p = report.pressure[in_contact]
         return cls(
@@ -87,7 +120,7 @@ class StepSummary:
             dissipation=float(report.dissipation), newton_iterations=report.newton_iterations,
             contact_iterations=report.contact_iterations, newton_residual=float(report.newton_residual),
             contact_residual=float(report.contact_residual), min_det_f=float(report.min_det_f),
-            wall_time_s=float(report.wall_time),
+            wall_time_s=float(report.wall_time), phase=phase,
         )
 
     def to_dict(self) -> dict:
@@ -96,7 +129,8 @@ class StepSummary:
             "step": self.step, "command": command_to_dict(self.command), "converged": self.converged,
             "status": self.status, "upper_centroid": list(self.upper_centroid),
             "lower_centroid": list(self.lower_centroid), "lower_yaw_deg": self.lower_yaw_deg,
-            "twist_deg": self.twist_deg, "lag": list(self.lag), "max_slip": self.max_slip,
+            "lower_direction_deviation_deg": self.lower_direction_deviation_deg,
+            "twist_deg": self.lower_direction_deviation_deg, "lag": list(self.lag), "max_slip": self.max_slip,
             "pressure_max": self.pressure_max, "pressure_min": self.pressure_min,
             "normal_force": self.normal_force, "tangential_force": list(self.tangential_force),
             "upper_force": list(self.upper_force), "equilibrium_error": self.equilibrium_error,
@@ -104,17 +138,21 @@ class StepSummary:
             "dissipation": self.dissipation, "newton_iterations": self.newton_iterations,
             "contact_iterations": self.contact_iterations, "newton_residual": self.newton_residual,
             "contact_residual": self.contact_residual, "min_det_f": self.min_det_f,
-            "wall_time_s": self.wall_time_s,
+            "wall_time_s": self.wall_time_s, "phase": self.phase,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> StepSummary:
-        """Inverse of :meth:`to_dict` (a ``summary.json`` step written by this version)."""
+        """Inverse of :meth:`to_dict` (a ``summary.json`` step written by this version;
+        an older one without ``lower_direction_deviation_deg`` reads ``twist_deg``).  A
+        ``null`` deviation (the lower face had not moved) reads back as ``nan``."""
         values = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
         tuples = ("upper_centroid", "lower_centroid", "lag", "tangential_force", "upper_force")
         values.update({k: _floats(d[k]) for k in tuples})
+        deviation = d.get("lower_direction_deviation_deg", d.get("twist_deg"))
         values.update(command=command_from_dict(d["command"], "command"),
-                      lower_yaw=math.radians(d["lower_yaw_deg"]), twist=math.radians(d["twist_deg"]))
+                      lower_yaw=math.radians(d["lower_yaw_deg"]),
+                      twist=math.nan if deviation is None else math.radians(deviation))
         return cls(**values)
 
 
@@ -142,10 +180,11 @@ class RestSummary:
     tangential_force: tuple[float, float]
     strain_energy: float
     status: str
+    step: int | None = None  # the step at which the block is at rest (the last release step)
 
     @classmethod
     def from_report(cls, report: StepReport, mode: str) -> RestSummary:
-        return cls(mode=mode, lower_centroid=_floats(report.lower_centroid), lower_yaw=float(report.lower_yaw),
+        return cls(mode=mode, step=report.step_index, lower_centroid=_floats(report.lower_centroid), lower_yaw=float(report.lower_yaw),
                    upper_centroid=_floats(report.upper_centroid), normal_force=float(report.normal_force),
                    tangential_force=_floats(report.tangential_force), strain_energy=float(report.strain_energy),
                    status=report.status.value)
@@ -158,14 +197,14 @@ class RestSummary:
         return {"mode": self.mode, "lower_centroid": list(self.lower_centroid), "lower_yaw_deg": self.lower_yaw_deg,
                 "upper_centroid": list(self.upper_centroid), "normal_force": self.normal_force,
                 "tangential_force": list(self.tangential_force), "strain_energy": self.strain_energy,
-                "status": self.status}
+                "status": self.status, "step": self.step}
 
     @classmethod
     def from_dict(cls, d: dict) -> RestSummary:
         return cls(mode=d["mode"], lower_centroid=_floats(d["lower_centroid"]),
                    lower_yaw=math.radians(d["lower_yaw_deg"]), upper_centroid=_floats(d["upper_centroid"]),
                    normal_force=float(d["normal_force"]), tangential_force=_floats(d["tangential_force"]),
-                   strain_energy=float(d["strain_energy"]), status=d["status"])
+                   strain_energy=float(d["strain_energy"]), status=d["status"], step=d.get("step"))
 
 
 @dataclass

@@ -101,7 +101,7 @@ def report_markdown(report: dict) -> str:
             f"({case['status']}, {case['elapsed_s']:.1f} s)",
             "",
             "| step | max slip µm @ | r_n max N @ | r_n min N @ | p max MPa @ | p min MPa @ | stick/slip/sep "
-            "| lower centroid mm | dir ° | twist ° | yaw ° | N kN | T kN | dissip. J | newton/local | s |",
+            "| lower centroid mm | dir ° | lower dev. ° | yaw ° | N kN | T kN | dissip. J | newton/local | s |",
             "|---" * 16 + "|",
         ]
         if case["failure"]:
@@ -110,13 +110,15 @@ def report_markdown(report: dict) -> str:
         for s in case["steps"]:
             lo = s["lower_centroid"]
             d = "-" if s["lower_direction_deg"] is None else f"{s['lower_direction_deg']:.2f}"
+            dev = s["lower_direction_deviation_deg"]
+            dev = "-" if dev is None else f"{dev:.3f}"
             lines.append(
                 f"| {s['step']} | {s['max_slip'] * 1e6:.2f} {_mm(s['max_slip_at'])} "
                 f"| {s['r_n_max']:.0f} {_mm(s['r_n_max_at'])} | {s['r_n_min']:.0f} {_mm(s['r_n_min_at'])} "
                 f"| {s['pressure_max'] / 1e6:.0f} {_mm(s['pressure_max_at'])} "
                 f"| {s['pressure_min'] / 1e6:.0f} {_mm(s['pressure_min_at'])} "
                 f"| {s['n_stick']}/{s['n_slip']}/{s['n_separated']} | ({lo[0] * 1e3:.4f}, {lo[1] * 1e3:.4f}) | {d} "
-                f"| {s['twist_deg']:.3f} | {s['lower_yaw_deg']:.4f} | {s['normal_force'] / 1e3:.1f} "
+                f"| {dev} | {s['lower_yaw_deg']:.4f} | {s['normal_force'] / 1e3:.1f} "
                 f"| {math.hypot(*s['tangential_force']) / 1e3:.1f} | {s['dissipation']:.3f} "
                 f"| {s['newton_iterations']}/{s['contact_iterations']} | {s['wall_time_s']:.2f} |"
             )
