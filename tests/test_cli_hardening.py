@@ -104,7 +104,7 @@ BAD_INPUTS = {
     "sweep executor": ("sweep", ("workers = 1", 'executor = "slurm"'), ("executor", "'slurm'")),
     "sweep workers zero": ("sweep", ("workers = 1", "workers = 0"), ("workers", "0")),
     "sweep heatmap axis": ("sweep", ("workers = 1", 'workers = 1\n[heatmap]\nx = "speed"\ny = "mu_ratio"\n'
-                                     'values = ["steady_twist_deg"]'), ("heatmap.x", "'speed'")),
+                                     'values = ["lag_angle_deg"]'), ("heatmap.x", "'speed'")),
     "sweep cli workers": ("sweep-argv", ["--workers", "-1"], ("workers", "-1")),
     "sweep figure folder": ("sweep-argv", ["--figure", "{tmp}/no/such/dir/f.png"], ("--figure", "f.png")),
 }

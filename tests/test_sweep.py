@@ -37,7 +37,7 @@ workers = 2
 [heatmap]
 x = "load[0].dz"
 y = "mu_ratio"
-values = ["steady_twist_deg", "direction_deviation_deg"]
+values = ["lag_angle_deg", "direction_deviation_deg"]
 file = "tiny.png"
 """
 
@@ -79,15 +79,17 @@ def test_pool_table_lists_failures_and_matches_the_elliptic_law(pool_run):
         assert (Path(out) / row["folder"] / "summary.json").is_file()
         if bad:
             assert "inverted" in row["error"] and row["steps_done"] == "0"
-            assert row["steady_twist_deg"] == ""
+            assert row["lag_angle_deg"] == ""
             continue
         assert row["error"] == ""
         mu_y = float(row["friction.mu_y"])
         law = elliptic_lag_angle_deg(MU_X, mu_y, PUSH_DEG)
-        assert float(row["steady_twist_deg"]) == pytest.approx(law, abs=LAW_TOL_DEG)
+        assert float(row["lag_angle_deg"]) == pytest.approx(law, abs=LAW_TOL_DEG)
+        assert row["steady_twist_deg"] == row["lag_angle_deg"]  # the old name, an alias for one release
+        assert row["twist_deg"] == row["lower_direction_deviation_deg"] != row["lag_angle_deg"]
         assert float(row["mu_ratio"]) == pytest.approx(MU_X / mu_y)
     anisotropic = [r for r in rows if r["status"] == "completed" and float(r["friction.mu_y"]) < MU_X]
-    assert float(anisotropic[0]["steady_twist_deg"]) < -40.0  # sheared nearly along the strong-friction axis
+    assert float(anisotropic[0]["lag_angle_deg"]) < -40.0  # sheared nearly along the strong-friction axis
     heat = (out / "tiny.png").read_bytes()
     assert heat.startswith(PNG_MAGIC) and figure.read_bytes() == heat
 
@@ -140,7 +142,7 @@ def test_resume_does_no_finished_case_again(pool_run, tmp_path):
     changed = {p for p in after if after[p] != before.get(p)}
     assert changed and all(redo["case"] in str(p) for p in changed)
     rerun_row = next(r for r in read_rows(work / "results.csv") if r["case"] == redo["case"])
-    assert rerun_row["steady_twist_deg"] == redo["steady_twist_deg"]  # a rerun gives the same numbers
+    assert rerun_row["lag_angle_deg"] == redo["lag_angle_deg"]  # a rerun gives the same numbers
 
     result = run_sweep(sweep, work, rerun_failed=True)
     assert sorted(result.ran) == sorted(r["case"] for r in read_rows(out / "results.csv") if r["status"] == "failed")

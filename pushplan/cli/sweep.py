@@ -15,8 +15,8 @@ EXECUTORS = ("process", "dask")
 def print_case(done: int, total: int, row: dict) -> None:
     """The progress line of a case that ran."""
     detail = row["error"] or (
-        f"steady twist {row['steady_twist_deg']:.3f} deg, deviation {row['direction_deviation_deg']:.3f} deg"
-        if row["steady_twist_deg"] is not None and row["direction_deviation_deg"] is not None else "")
+        f"lag angle {row['lag_angle_deg']:.3f} deg, deviation {row['direction_deviation_deg']:.3f} deg"
+        if row["lag_angle_deg"] is not None and row["direction_deviation_deg"] is not None else "")
     print(f"[{done:>{len(str(total))}}/{total}] {row['case']}: {row['status']}  {detail}", flush=True)
 
 

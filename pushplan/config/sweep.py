@@ -16,7 +16,7 @@ A sweep file reads::
     [heatmap]                             # optional figure over two table columns
     x = "load.direction_deg"
     y = "mu_ratio"
-    values = ["steady_twist_deg", "direction_deviation_deg"]
+    values = ["lag_angle_deg", "direction_deviation_deg"]
     file = "sweep_twist.png"              # written in the output folder
 
 Override keys are dotted paths into the scenario: ``table.key`` for ``block``,
@@ -60,12 +60,14 @@ PARAMETER_COLUMNS = (
 )
 """Table columns of a case's resolved scenario (:func:`parameter_columns`)."""
 RESULT_COLUMNS = (
-    "steps_done", "twist_deg", "lower_yaw_deg", "direction_deviation_deg", "steady_twist_deg",
-    "steady_twist_elliptic_deg", "step_deviation_deg", "lag", "normal_force", "max_slip", "dissipation",
+    "steps_done", "lower_direction_deviation_deg", "lower_yaw_deg", "direction_deviation_deg", "lag_angle_deg",
+    "lag_angle_elliptic_deg", "step_deviation_deg", "lag", "normal_force", "max_slip", "dissipation",
     "min_step_dissipation", "max_equilibrium_error", "newton_iterations", "elapsed_s",
-    "plan_final_error", "naive_final_error",
+    "plan_final_error", "naive_final_error", "twist_deg", "steady_twist_deg", "steady_twist_elliptic_deg",
 )
-"""Table columns of a case's outcome (:func:`pushplan.studies.sweep_tables.result_columns`)."""
+"""Table columns of a case's outcome (:func:`pushplan.studies.sweep_tables.result_columns`);
+the last three are the names before issue 33, kept one release as aliases of
+``lower_direction_deviation_deg``, ``lag_angle_deg`` and ``lag_angle_elliptic_deg``."""
 
 _PATH = re.compile(r"^(?P<table>[A-Za-z_]\w*)(?:\[(?P<index>\d+)\])?\.(?P<key>[A-Za-z_]\w*)$")
 _SLUG = re.compile(r"[^A-Za-z0-9._=+-]+")  # ids are ASCII; short_case_id bounds their length

@@ -10,18 +10,19 @@ Result columns (empty unless the case completed; SI units, degrees):
 
 ``steps_done``
     Converged steps (also for a case that did not complete).
-``twist_deg``, ``lower_yaw_deg``
-    The last step's values (:class:`pushplan.run.StepSummary`).
+``lower_direction_deviation_deg``, ``lower_yaw_deg``
+    The last step's values (:class:`pushplan.run.StepSummary`; the deviation, from the
+    upper- to the lower-face travel, empty while the lower face sticks).
 ``direction_deviation_deg``
     Signed angle from the net push (sum of the in-plane commands) to the lower-face
     centroid displacement at the end: where the lower face went, against where it
     was pushed.
-``steady_twist_deg``
+``lag_angle_deg``
     Signed angle from the last command's push direction to the lag (upper minus
     lower centroid displacement): the direction in which the block is sheared.  In
     steady sliding it is constant, and for a block whose in-plane shear stiffness
     is isotropic it equals the angle of the sliding friction force of the elliptic
-    law, ``steady_twist_elliptic_deg`` = ``atan2(mu_y^2 sin p, mu_x^2 cos p) - p``
+    law, ``lag_angle_elliptic_deg`` = ``atan2(mu_y^2 sin p, mu_x^2 cos p) - p``
     with ``p`` the push direction in the orthotropy frame.
 ``step_deviation_deg``
     Signed angle from the last command's push direction to the lower-face centroid
@@ -35,6 +36,10 @@ Result columns (empty unless the case completed; SI units, degrees):
 ``plan_final_error``, ``naive_final_error``
     ``run = "plan"`` only: FE-verified final position error of the plan and of the
     naive straight push, m.
+``twist_deg``, ``steady_twist_deg``, ``steady_twist_elliptic_deg``
+    The names before issue 33 ("twist" named two different angles), kept one release
+    as aliases of ``lower_direction_deviation_deg``, ``lag_angle_deg``,
+    ``lag_angle_elliptic_deg``.
 """
 
 from __future__ import annotations
@@ -81,11 +86,11 @@ def result_columns(summary: dict | None) -> dict:
         law = _angle_deg((math.cos(p), math.sin(p)), (fr["mu_x"] ** 2 * math.cos(p), fr["mu_y"] ** 2 * math.sin(p)))
     out.update(
         steps_done=len(steps),
-        twist_deg=last["twist_deg"],
+        lower_direction_deviation_deg=last.get("lower_direction_deviation_deg", last.get("twist_deg")),
         lower_yaw_deg=last["lower_yaw_deg"],
         direction_deviation_deg=_angle_deg(push, lower),
-        steady_twist_deg=_angle_deg(direction, last["lag"]),
-        steady_twist_elliptic_deg=law,
+        lag_angle_deg=_angle_deg(direction, last["lag"]),
+        lag_angle_elliptic_deg=law,
         step_deviation_deg=_angle_deg(direction, (lower[0] - prev[0], lower[1] - prev[1])),
         lag=math.hypot(*last["lag"][:2]),
         normal_force=last["normal_force"],
@@ -96,6 +101,8 @@ def result_columns(summary: dict | None) -> dict:
         newton_iterations=sum(s["newton_iterations"] for s in steps),
         elapsed_s=summary["elapsed_s"],
     )
+    out.update(twist_deg=out["lower_direction_deviation_deg"], steady_twist_deg=out["lag_angle_deg"],
+               steady_twist_elliptic_deg=out["lag_angle_elliptic_deg"])  # aliases, one release
     if "plan" in summary:
         out.update(plan_final_error=summary["plan"]["final_error"]["position"],
                    naive_final_error=summary["plan"]["naive_final_error"]["position"])
@@ -138,7 +145,7 @@ def write_tables(out: Path, rows: list[dict]) -> list[Path]:
 # ---- heat map ---------------------------------------------------------------
 
 LABELS = {
-    "steady_twist_deg": "steady twist (deg)\nlag direction - push direction",
+    "lag_angle_deg": "lag angle (deg)\nshear (lag) direction - push direction",
     "direction_deviation_deg": "lower-face direction deviation (deg)\nlower-face motion - push direction",
     "load.direction_deg": "push direction (deg from x)",
     "mu_ratio": "anisotropy mu_x / mu_y",
