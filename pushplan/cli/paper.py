@@ -19,12 +19,14 @@ PAPER_ELEMENTS = (20, 20, 5)
 
 
 def print_report(report, out) -> None:
-    """One line per case, the claims (and their failing checks), the report path."""
+    """One line per case, the claims (and the checks whose criterion is not met, each as
+    "quantity: measured value, criterion ..."), the report path."""
     for case in report.cases:
         if case.steps:
             s = case.steps[-1]
             print(f"{case.name}: {case.run.summary.status.value}, {case.run.summary.elapsed_s:.1f} s, "
-                  f"max slip {s.summary.max_slip * 1e3:.4f} mm, twist {round(s.summary.twist_deg, 3) + 0.0:.3f}°, "
+                  f"max slip {s.summary.max_slip * 1e3:.4f} mm, lower-face direction deviation (the paper's twist) "
+                  f"{round(s.summary.twist_deg, 3) + 0.0:.3f}°, "
                   f"lower-face direction {s.lower_direction_deg:.2f}°")
     for claim in report.claims or ():
         if claim.holds:
@@ -32,7 +34,7 @@ def print_report(report, out) -> None:
             continue
         print(f"claim {claim.key}: partly reproduced; finding (a result, not an error; see report.md):")
         for check in claim.failed_checks:
-            print(f"    not reproduced: {check.text}")
+            print(f"    criterion not met: {check.text}")
     print(f"wrote {Path(out) / 'report.md'} ({report.wall_time_s:.1f} s)")
 
 

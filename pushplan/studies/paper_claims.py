@@ -209,16 +209,18 @@ def claim_compression_slip(model: Model, first: list[StepReport]) -> Claim:
         "larger tangential displacement along y, the low-friction direction",
         {"cases": cases},
         (
-            Check("the centre node sticks, no periphery node sticks",
+            Check("stick zone: criterion the centre node sticks and no periphery node sticks",
                   all(c["centre_stick"] and not c["stick_on_periphery"] for c in cases)),
-            Check(f"slip never drops by more than {MONOTONE_TOL:.0%} of its max along {RAY_COUNT} rays from the "
-                  "centre", all(c["worst_ray_decrease"] <= MONOTONE_TOL for c in cases)),
-            Check(f"case 1 iso-line circular: aspect x/y within {CLOSE_RTOL:.0%} of 1 (measured {aspect[0]:.3f})",
+            Check(f"largest slip drop along {RAY_COUNT} rays from the centre: measured "
+                  + _joined([c["worst_ray_decrease"] for c in cases], ".1%") + f" of the max, criterion <= "
+                  f"{MONOTONE_TOL:.0%}", all(c["worst_ray_decrease"] <= MONOTONE_TOL for c in cases)),
+            Check(f"case 1 iso-line aspect x/y: measured {aspect[0]:.3f}, criterion within {CLOSE_RTOL:.0%} of 1 "
+                  "(circular)",
                   abs(aspect[0] - 1) < CLOSE_RTOL),
-            Check(f"case 2, 3 iso-lines elliptic, flat in y like the friction ellipse (semi-axes mu_x, mu_y), "
-                  f"flatter for case 3: 1 < aspect x/y {aspect[1]:.2f} < {aspect[2]:.2f}", 1 < aspect[1] < aspect[2]),
-            Check(f"slip larger along y: slip at y-edge / x-edge {_joined(ratio, '.2f')} "
-                  "(1, then growing with mu_x / mu_y)", abs(ratio[0] - 1) < CLOSE_RTOL and 1 < ratio[1] < ratio[2]),
+            Check(f"case 2, 3 iso-line aspect x/y: measured {aspect[1]:.2f}, {aspect[2]:.2f}, criterion 1 < case 2 "
+                  "< case 3 (flat in y like the friction ellipse, flatter for case 3)", 1 < aspect[1] < aspect[2]),
+            Check(f"slip at y-edge / x-edge: measured {_joined(ratio, '.2f')}, criterion case 1 within "
+                  f"{CLOSE_RTOL:.0%} of 1, then 1 < case 2 < case 3 (growing with mu_x / mu_y)", abs(ratio[0] - 1) < CLOSE_RTOL and 1 < ratio[1] < ratio[2]),
         ),
     )
 
@@ -234,16 +236,17 @@ def claim_compression_normal_reaction(model: Model, first: list[StepReport], pus
         "largest r_n around the base centre, not changing notably with friction; minimum at the periphery",
         {"r_n": rn, "pressure": p},
         (
-            Check("r_n global max in the inner half of the face (edge position <= 0.5); positions "
-                  + _joined([r["max_edge_position"] for r in rn["cases"]], ".2f"),
+            Check("r_n global max edge position: measured "
+                  + _joined([r["max_edge_position"] for r in rn["cases"]], ".2f")
+                  + ", criterion <= 0.5 (inner half of the face)",
                   all(r["max_edge_position"] <= 0.5 for r in rn["cases"])),
-            Check(f"r_n at the centre within {CLOSE_RTOL:.0%} of the global max: centre / max "
-                  + _joined(rn["centre_over_max"], ".3f"), min(rn["centre_over_max"]) > 1 - CLOSE_RTOL),
-            Check("r_n min on the periphery", all(r["min_edge_position"] > 1 - 1e-9 for r in rn["cases"])),
-            Check(f"r_n max differs little across cases: spread {rn['max_spread']:.1%} < {CLOSE_RTOL:.0%}",
+            Check("r_n at the centre / global max: measured " + _joined(rn["centre_over_max"], ".3f")
+                  + f", criterion > {1 - CLOSE_RTOL:.2f}", min(rn["centre_over_max"]) > 1 - CLOSE_RTOL),
+            Check("r_n min: criterion on the periphery", all(r["min_edge_position"] > 1 - 1e-9 for r in rn["cases"])),
+            Check(f"r_n max spread across cases: measured {rn['max_spread']:.1%}, criterion < {CLOSE_RTOL:.0%}",
                   rn["max_spread"] < CLOSE_RTOL),
-            Check("(not in the paper) pressure r_n / area peaks on the periphery; centre / max "
-                  + _joined(p["centre_over_max"], ".3f"), all(r["max_edge_position"] > 1 - 1e-9 for r in p["cases"])),
+            Check("(not in the paper) pressure r_n / area: centre / max measured "
+                  + _joined(p["centre_over_max"], ".3f") + ", criterion peak on the periphery", all(r["max_edge_position"] > 1 - 1e-9 for r in p["cases"])),
         ),
     )
 
@@ -269,11 +272,14 @@ def claim_sliding_slip(model: Model, last: list[StepReport], push: np.ndarray) -
         "max slip at the front corner; case 1 and case 2 max slips close; larger y displacement for case 3",
         {"cases": cases, "case1_case2_relative_difference": c12},
         (
-            Check(f"max slip within one element diagonal ({h * 1e3:.2f} mm) of the front corner; distances "
-                  + ", ".join(f"{c['distance_to_front_corner'] * 1e3:.2f} mm" for c in cases),
+            Check("max slip distance to the front corner: measured "
+                  + ", ".join(f"{c['distance_to_front_corner'] * 1e3:.2f} mm" for c in cases)
+                  + f", criterion <= one element diagonal ({h * 1e3:.2f} mm)",
                   all(c["distance_to_front_corner"] <= h for c in cases)),
-            Check(f"case 1 and case 2 max slips differ by {c12:.2%} < {CLOSE_RTOL:.0%}", c12 < CLOSE_RTOL),
-            Check("case 3 lower face moves furthest in y: " + _joined([v * 1e3 for v in y], ".4f") + " mm",
+            Check(f"case 1 vs case 2 max slip difference: measured {c12:.2%}, criterion < {CLOSE_RTOL:.0%}",
+                  c12 < CLOSE_RTOL),
+            Check("lower-face y displacement: measured " + _joined([v * 1e3 for v in y], ".4f")
+                  + " mm, criterion case 3 largest",
                   y[2] > max(y[0], y[1])),
         ),
     )
@@ -288,14 +294,14 @@ def claim_sliding_normal_reaction(model: Model, last: list[StepReport], push: np
         "r_n max in the front area, min in the back area; max and min very close for all cases",
         {"r_n": rn, "pressure": p, "tangential_force": [float(math.hypot(*rep.tangential_force)) for rep in last]},
         (
-            Check("r_n max ahead of the centre, r_n min behind it (along the push)",
+            Check("r_n extremes: criterion max ahead of the centre, min behind it (along the push)",
                   all(r["max_along_push"] > 0 > r["min_along_push"] for r in rn["cases"])),
-            Check("pressure max ahead of the centre, pressure min behind it",
+            Check("pressure extremes: criterion max ahead of the centre, min behind it",
                   all(r["max_along_push"] > 0 > r["min_along_push"] for r in p["cases"])),
-            Check(f"r_n max very close across cases: spread {rn['max_spread']:.1%} < {CLOSE_RTOL:.0%}",
+            Check(f"r_n max spread across cases: measured {rn['max_spread']:.1%}, criterion < {CLOSE_RTOL:.0%}",
                   rn["max_spread"] < CLOSE_RTOL),
-            Check(f"r_n min very close across cases: spread {rn['min_spread_of_max']:.1%} of the mean max "
-                  f"< {CLOSE_RTOL:.0%}", rn["min_spread_of_max"] < CLOSE_RTOL),
+            Check(f"r_n min spread across cases: measured {rn['min_spread_of_max']:.1%} of the mean max, "
+                  f"criterion < {CLOSE_RTOL:.0%}", rn["min_spread_of_max"] < CLOSE_RTOL),
         ),
     )
 
@@ -318,9 +324,11 @@ def claim_twist(last: list[StepReport]) -> Claim:
         "directions, the block twists, more for case 3",
         {"cases": cases},
         (
-            Check(f"case 1 twist {tw[0]:.2g}° < {TWIST_ZERO_DEG}°", tw[0] < TWIST_ZERO_DEG),
-            Check(f"case 2, 3 twist {tw[1]:.3f}°, {tw[2]:.3f}° > {TWIST_ZERO_DEG}°", min(tw[1:]) > TWIST_ZERO_DEG),
-            Check("twist larger for case 3 than case 2", tw[2] > tw[1]),
+            Check(f"case 1 |twist|: measured {tw[0]:.2g}°, criterion < {TWIST_ZERO_DEG}°", tw[0] < TWIST_ZERO_DEG),
+            Check(f"case 2, 3 |twist|: measured {tw[1]:.3f}°, {tw[2]:.3f}°, criterion > {TWIST_ZERO_DEG}°",
+                  min(tw[1:]) > TWIST_ZERO_DEG),
+            Check(f"|twist| case 3 vs case 2: measured {tw[2]:.3f}° vs {tw[1]:.3f}°, criterion case 3 larger",
+                  tw[2] > tw[1]),
         ),
     )
 
