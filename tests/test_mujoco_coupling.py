@@ -9,7 +9,6 @@ alone."""
 from __future__ import annotations
 
 import json
-import math
 import warnings
 from dataclasses import replace
 from pathlib import Path

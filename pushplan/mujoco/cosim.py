@@ -18,7 +18,7 @@ from fe_contact import Command, Model, StepReport, warm_up
 from ..config.commands import command_to_dict
 from ..errors import InputError
 from ..run.summary import RunStatus, StepSummary
-from .coupling import USERDATA_LAYOUT, CoSimulation
+from .coupling import CoSimulation
 from .mjmodel import geom_label, mocap_index, mujoco_module
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory
@@ -32,7 +32,7 @@ class CosimPeriod:
     end; ``lower_centre`` (3,) and ``lower_yaw`` the FE lower-face pose (centre and
     yaw); ``mujoco_lower_centre`` (3,) and ``mujoco_yaw`` the block pose MuJoCo shows;
     ``gripper_force``, ``contact_force``, ``contact_moment`` (3,) what the coupler wrote
-    into MuJoCo (see the module docstring); ``boxes`` name -> (centre (3,), quat (4,),
+    into MuJoCo (see :mod:`.coupling`); ``boxes`` name -> (centre (3,), quat (4,),
     half sizes (3,)) of every MuJoCo box geom (the recording draws them)."""
 
     period: int
