@@ -19,7 +19,7 @@ import pytest
 
 from pushplan.cli import main
 from pushplan.errors import InputError
-from pushplan.mujoco import attach, open_scene, run_cosimulation
+from pushplan.mujoco import attach, open_scene, run_cosimulation, scene_from_mjcf
 from pushplan.mujoco.scene import block_geom_pose
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,11 +32,13 @@ SENSOR_REL = 1e-6     # wrist sensor vs the FE gripper force, relative
 SAME_POSE = 1e-9      # m, user loop vs cosim
 
 
-def _arm_run(periods: int | None = None):
+def _arm_run(periods: int | None = None, xml: Path = ARM_XML):
     """The arm scene's planned push through a user loop: position/PD actuators track
     the planned hand path (linear within a period), ``couple()`` once per period."""
     scene, settings = open_scene(ARM_TOML)
-    m = mujoco.MjModel.from_xml_path(str(ARM_XML))
+    if xml != ARM_XML:
+        scene = scene_from_mjcf(xml, base=scene.scenario)
+    m = mujoco.MjModel.from_xml_path(str(xml))
     d = mujoco.MjData(m)
     coupler = attach(m, d, scene, gripper="hand", fe_model=scene.scenario.model(elements=TINY))
     commands = scene.scenario.commands[:periods]
@@ -50,7 +52,8 @@ def _arm_run(periods: int | None = None):
             mujoco.mj_step(m, d)
             low, _, yaw = block_geom_pose(m, d, scene)
             fe_low = scene.lower_centre + scene.to_world(coupler.lower_displacement)
-            out["hold"] = max(out["hold"], np.abs(low - fe_low).max(), abs(yaw - scene.yaw - coupler.lower_yaw))
+            out["hold"] = max(out["hold"], np.abs(low - fe_low).max(),
+                              abs(yaw - scene.yaw - coupler.lower_yaw) * max(scene.scenario.size))
             # the wrist sensor, in the world frame, against the FE gripper force in force
             force = d.site_xmat[site].reshape(3, 3) @ d.sensordata[0:3]
             ref = coupler.gripper_force
@@ -78,6 +81,28 @@ def test_arm_pushes_the_fe_block_over_200_periods():
     assert np.linalg.norm(coupler.lower_displacement[:2]) > 0.5 * travel
     print(f"\narm: hold {out['hold']:.2e} m, sensor {out['sensor']:.2e} rel, tracking {out['tracking']:.2e} m, "
           f"final F_g {coupler.gripper_force} N, lower {coupler.lower_displacement * 1e3} mm")
+
+
+def test_arm_coupling_on_a_yawed_scene_with_turned_friction_axes(tmp_path):
+    """The issue's own kind of scene: block off the origin yawed 25 deg, friction axes
+    turned by the numeric, the hand yawed with it; the block turns (it yaws) and is
+    still held, and the wrist still reads the FE force."""
+    text = ARM_XML.read_text()
+    for old, new in (
+        ('<body name="block" pos="0 0 0.005">', '<body name="block" pos="0.013 -0.027 0.005" euler="0 0 25">'),
+        ('<body name="carriage_x" pos="0 0 0.1"', '<body name="carriage_x" pos="0.013 -0.027 0.1"'),
+        ('<body name="hand" pos="0 0 -0.09">', '<body name="hand" pos="0 0 -0.09" euler="0 0 25">'),
+        ('<numeric name="pushplan_poisson" data="0.3"/>',
+         '<numeric name="pushplan_poisson" data="0.3"/><numeric name="pushplan_friction_angle" data="10"/>'),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / "yawed_arm.xml"
+    path.write_text(text)
+    m, d, scene, coupler, plan, out = _arm_run(60, path)
+    assert scene.scenario.angle_deg == pytest.approx(-15.0, abs=1e-9)  # 10 deg turned, seen from a 25 deg block
+    assert abs(coupler.lower_yaw) > 1e-3  # rad: the block turns, and MuJoCo shows it turned
+    assert out["hold"] <= HOLD_TOL and out["sensor"] <= SENSOR_REL
 
 
 def test_a_user_loop_of_mj_step_and_couple_reproduces_cosim(tmp_path):
