@@ -45,7 +45,8 @@ def _arm_run(periods: int | None = None, xml: Path = ARM_XML):
     plan = np.vstack([np.zeros(3), np.cumsum(scene.to_world([[c.dx, c.dy, c.dz] for c in commands]), axis=0)])
     n_sub = round(settings.control_period / m.opt.timestep)
     site = m.site("wrist").id
-    out = {"hold": 0.0, "sensor": 0.0, "tracking": 0.0}
+    out = {"hold": 0.0, "sensor": 0.0, "torque": 0.0, "tracking": 0.0}
+    hand = m.body("hand").id
     for k in range(len(commands)):
         for j in range(1, n_sub + 1):
             d.ctrl[:] = plan[k] + (plan[k + 1] - plan[k]) * j / n_sub
@@ -58,6 +59,11 @@ def _arm_run(periods: int | None = None, xml: Path = ARM_XML):
             force = d.site_xmat[site].reshape(3, 3) @ d.sensordata[0:3]
             ref = coupler.gripper_force
             out["sensor"] = max(out["sensor"], np.linalg.norm(force - ref) / np.linalg.norm(ref)) if k else 0.0
+            # the torque sensor: the gripper's moment (about the hand's origin) carried to the site
+            torque = d.site_xmat[site].reshape(3, 3) @ d.sensordata[3:6]
+            moment = coupler.gripper_moment + np.cross(d.xpos[hand] - d.site_xpos[site], ref)
+            scale = np.linalg.norm(ref) * max(scene.scenario.size)  # N m: a zero moment is exact to rounding only
+            out["torque"] = max(out["torque"], np.linalg.norm(torque - moment) / scale) if k else 0.0
         rep = coupler.couple()
         assert rep.converged, rep.message
         out["tracking"] = max(out["tracking"], np.abs(d.qpos[7:10] - plan[k + 1]).max())
@@ -68,7 +74,8 @@ def test_arm_pushes_the_fe_block_over_200_periods():
     m, d, scene, coupler, plan, out = _arm_run()
     assert len(coupler.reports) == 200
     assert out["hold"] <= HOLD_TOL
-    assert out["sensor"] <= SENSOR_REL
+    assert out["sensor"] <= SENSOR_REL and out["torque"] <= SENSOR_REL
+    np.testing.assert_allclose(d.userdata[9:12], coupler.gripper_moment, rtol=1e-15)
     # the arm feels the block: at rest its joints sit off their reference by the FE reaction / kp
     kp = m.actuator_gainprm[:, 0]
     np.testing.assert_allclose(d.qpos[7:10] - plan[-1], -coupler.gripper_force / kp, rtol=1e-3)
@@ -79,7 +86,7 @@ def test_arm_pushes_the_fe_block_over_200_periods():
     assert out["tracking"] < 1.5 * np.abs(coupler.gripper_force).max() / kp.min() < 0.03 * travel
     # the block slid (the FE lower face travelled most of the push)
     assert np.linalg.norm(coupler.lower_displacement[:2]) > 0.5 * travel
-    print(f"\narm: hold {out['hold']:.2e} m, sensor {out['sensor']:.2e} rel, tracking {out['tracking']:.2e} m, "
+    print(f"\narm: hold {out['hold']:.2e} m, sensor {out['sensor']:.2e} rel, torque {out['torque']:.2e} rel, tracking {out['tracking']:.2e} m, "
           f"final F_g {coupler.gripper_force} N, lower {coupler.lower_displacement * 1e3} mm")
 
 

@@ -20,15 +20,16 @@ m, N, N m):
   the armature :data:`KINEMATIC_ARMATURE` (set once at attachment, with MuJoCo's
   "simple body" shortcut ``dof_simplenum`` / ``body_simple`` off for it, which would
   ignore the armature), so ``mj_step`` leaves it where the FE put it (a force of 1 kN
-  moves it by ~1e-23 m per period);
+  moves it by ~1e-20 m in a 0.05 s period);
   ``xfrc_applied[block]`` is zero.  A mocap block is moved through ``mocap_pos/quat``.
 * **the gripper body receives the FE reaction**: ``xfrc_applied[gripper body]`` is the
   force the block's upper face applies on the gripper, ``-F_g``, and its moment about
-  the gripper body's centre of mass.  The moment of the upper-face forces follows from
+  the gripper body's centre of mass (where MuJoCo applies ``xfrc_applied``).  The moment of the upper-face forces follows from
   the block's balance (contact + weight + gripper = 0, eq. 3 of the paper).  A
   ``<force>`` / ``<torque>`` sensor on a site of a massless, jointless hand body then
-  reads, in the site frame, the wrench the arm applies on the hand, ``F_g`` (and its
-  moment about the site): what a wrist force/torque sensor reads.
+  reads, in the site frame, the wrench the arm applies on the hand, ``F_g`` and its
+  moment about the site (``gripper_moment`` when the site is the gripper frame): what
+  a wrist force/torque sensor reads.
 * ``data.userdata`` (as far as ``<size nuserdata=...>`` holds whole fields), layout
   :data:`USERDATA_LAYOUT`.
 
@@ -63,7 +64,8 @@ USERDATA_LAYOUT = {
 ``gripper_force`` the force the gripper applies on the block's upper face;
 ``contact_force`` the floor's FE contact resultant on the block and ``contact_moment``
 its moment about the block's centre of mass; ``gripper_moment`` the moment of the
-gripper's force on the block about the gripper body's centre of mass;
+gripper's forces on the block about the gripper frame (the origin of the ``gripper``
+body or site);
 ``contact_counts`` the (stick, slip, separated) contact node counts; ``period`` the
 number of ``couple()`` calls; ``converged`` 1.0 when the last FE step converged."""
 USERDATA_SIZE = 17
@@ -129,7 +131,8 @@ class CoSimulation:
         self.lower_displacement = np.zeros(3)  # FE frame, m
         self.lower_yaw = 0.0
         self.gripper_force = np.zeros(3)  # world, N: gripper on the block's upper face
-        self.gripper_moment = np.zeros(3)  # world, N m: of gripper_force, about the gripper body's CoM
+        self.gripper_moment = np.zeros(3)  # world, N m: of the gripper's forces, about the gripper frame
+        self._moment_at_com = np.zeros(3)  # the same about the gripper body's CoM (where xfrc acts)
         self.contact_force = np.zeros(3)  # world, N: floor on the block (FE contact resultant)
         self.contact_moment = np.zeros(3)  # world, N m: about the block body's centre of mass
         self.contact_counts = np.zeros(3)  # stick, slip, separated contact nodes
@@ -165,15 +168,22 @@ class CoSimulation:
         yaw = matrix_yaw(R)
         return p + rz(yaw) @ self._offset, yaw
 
+    def _frame_position(self) -> np.ndarray:
+        """(3,) world origin of the gripper body or site now."""
+        d = self.mj_data
+        return (d.xpos if self._gkind == "body" else d.site_xpos)[self._gid].copy()
+
     def block_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World (pos (3,), quat (4,)) of the block body for the current FE lower-face pose."""
         return self.scene.body_pose(self.lower_displacement, self.lower_yaw)
 
     def _measure_forces(self, rep: StepReport) -> None:
         """World-frame forces of a converged step: gripper force ``F_g``; contact
-        resultant and its moment about the block's CoM; the moment of ``F_g`` about the
-        gripper body's CoM from the balance ``M_g(P) = -sum (x_i - P) x f_i`` over the
-        contact and self-weight nodal forces ``f_i`` at the deformed nodes ``x_i``."""
+        resultant and its moment about the block's CoM; the moment of the gripper's
+        forces about the gripper frame origin ``P`` from the balance
+        ``M_g(P) = -sum (x_i - P) x f_i`` over the contact and self-weight nodal forces
+        ``f_i`` at the deformed nodes ``x_i``, and about the gripper body's CoM ``C``,
+        ``M_g(C) = M_g(P) + (P - C) x F_g``, for ``xfrc_applied``."""
         mj, s, d = mujoco_module(), self.scene, self.mj_data
         mesh = self.model.mesh
         nodes = s.lower_centre + s.to_world(mesh.nodes + rep.displacement)
@@ -188,7 +198,9 @@ class CoSimulation:
         if self.model.body_force is not None:
             arms = np.vstack([arms, nodes])
             loads = np.vstack([loads, s.to_world(self.model.body_force.reshape(-1, 3))])
-        self.gripper_moment = -np.cross(arms - d.xipos[self._gbody], loads).sum(axis=0)
+        frame, com = self._frame_position(), d.xipos[self._gbody]
+        self.gripper_moment = -np.cross(arms - frame, loads).sum(axis=0)
+        self._moment_at_com = self.gripper_moment + np.cross(frame - com, self.gripper_force)
         self.contact_counts = np.array([rep.n_stick, rep.n_slip, rep.n_separated], float)
 
     def _write(self) -> None:
@@ -197,7 +209,7 @@ class CoSimulation:
         d = self.mj_data
         d.xfrc_applied[self._bid] = 0.0
         if self._gbody != 0:  # the world body takes no force
-            d.xfrc_applied[self._gbody] = -np.concatenate([self.gripper_force, self.gripper_moment])
+            d.xfrc_applied[self._gbody] = -np.concatenate([self.gripper_force, self._moment_at_com])
         for key, where in USERDATA_LAYOUT.items():
             if where.stop <= self.mj_model.nuserdata:
                 d.userdata[where] = getattr(self, key)
