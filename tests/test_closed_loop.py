@@ -106,3 +106,77 @@ def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identi
     assert not est["mu_y"]["identifiable"]
     assert est["mu_x"]["identifiable"] and abs(est["mu_x"]["estimate"] - 0.39) <= 0.03 * 0.39
     assert doc["iterations"][-1]["planned_with"]["mu_x"] == pytest.approx(0.39, rel=0.03)
+
+
+YAW_MODEL = """
+name = "yaw_model"
+[block]
+size = [0.020, 0.020, 0.010]
+elements = [4, 4, 2]
+quadrature = 2
+[material]
+young = {young}
+poisson = 0.45
+[friction]
+mu_x = {mu_x}
+mu_y = {mu_y}
+angle_deg = 0.0
+[[load]]
+dz = -0.3e-3
+[solver]
+local_method = "newton"
+"""
+YAW_PLAN = """
+[plan]
+x = 2.0e-3
+y = 1.0e-3
+yaw_deg = 8.0
+steps = 6
+max_step = 0.8e-3
+max_dtheta_deg = 3.0
+tolerance = 4.0e-6
+yaw_tolerance_deg = 0.1
+planning_elements = [4, 4, 2]
+planning_quadrature = 2
+"""
+
+
+def test_yaw_target_replans_without_a_negative_compliance(tmp_path, capsys):
+    # re-planning from a loaded, twisted state used to calibrate the torsion on it and get
+    # a negative compliance, refused as bad input (exit 2) in the middle of the loop
+    (tmp_path / "m.toml").write_text(YAW_MODEL.format(young=5e6, mu_x=0.8, mu_y=0.3) + YAW_PLAN)
+    (tmp_path / "t.toml").write_text(YAW_MODEL.format(young=6e6, mu_x=1.04, mu_y=0.39))
+    code = main(["closed-loop", str(tmp_path / "m.toml"), "--truth", str(tmp_path / "t.toml"), "--out",
+                 str(tmp_path / "cl"), "--quiet", "--no-recording"])
+    assert code in (0, 3), capsys.readouterr().err
+    doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+    assert len(doc["iterations"]) == 6
+
+
+def test_calibration_never_returns_a_negative_compliance():
+    import numpy as np
+
+    from pushplan.config import parse_scenario
+    from pushplan.planning.reduced_model import calibrate, elastic_estimate
+    from pushplan.planning.rollouts import FeRollouts
+    import tomllib
+
+    from pushplan.config.commands import planar_commands
+    from pushplan.config.plan import press_commands
+
+    sc = parse_scenario(tomllib.loads(YAW_MODEL.format(young=5e6, mu_x=0.8, mu_y=0.3)))
+    model = sc.model()
+    fe = FeRollouts(model, press_commands(sc), "t")
+    push = fe.rollout(np.tile([0.3e-3, 0.0, 0.0], (2, 1)))
+    # a twist from a loaded, twisted state (what a re-plan used to calibrate on): its yaw is
+    # absolute, its lag relative; the ratio is negative and the elastic estimate stands in
+    loaded = FeRollouts(model, press_commands(sc), "t", after=planar_commands(np.array([[0.5e-3, 0.2e-3, 0.026]] * 3)))
+    twist = loaded.rollout(np.tile([0.0, 0.0, 0.05], (6, 1)))
+    est = elastic_estimate(model, push.reports[-1].normal_force)
+    p = calibrate(model, push.reports, twist.reports)
+    assert p.compliance > 0 and p.torsion_compliance > 0 and p.max_torque > 0
+    assert p.torsion_compliance == est["torsion_compliance"]
+    # from rest the rollout calibrates, near the elastic estimate (within 20 %)
+    rest = calibrate(model, push.reports, fe.rollout(np.tile([0.0, 0.0, 0.05], (2, 1))).reports)
+    assert rest.torsion_compliance != est["torsion_compliance"]
+    assert rest.torsion_compliance == pytest.approx(est["torsion_compliance"], rel=0.2)

@@ -21,7 +21,7 @@ from fe_contact import Command, Model, State, StepReport
 from ..config.commands import command_to_dict, planar_commands
 from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
-from ..errors import SolverFailure
+from ..errors import InputError, SolverFailure
 from ..planning import plan
 from ..planning.replan import replan
 from ..planning.target import pose_error, within_tolerance
@@ -31,8 +31,19 @@ from .fit import identify
 from .noise import NoiseModel
 
 
+LOOP_FIT = ("mu_x", "mu_y", "angle_deg", "young")
+"""Parameters re-identified in the loop: the stiffness too, since a real block's (and a finer
+mesh's) differs from the model's and sets the lag the plan must anticipate."""
+
+
 class TruthFailure(SolverFailure):
     """An FE step of the truth model failed."""
+
+
+class LoopError(RuntimeError):
+    """A value computed inside the loop was refused as if it were input: a bug (exit 1
+    with its traceback), never the bad-input exit, since the inputs were checked before
+    the loop started."""
 
 
 @dataclass
@@ -116,7 +127,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log):
     else:
         obs = observations_from_steps(truth.steps)
         if use_identify:
-            est = identify(model_sc, obs, noise)
+            est = identify(model_sc, obs, noise, LOOP_FIT)
             identified = _identified(est)
             model_sc = est.scenario(model_sc)
             if log:
@@ -142,14 +153,17 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     iterations, current = [], model_sc
     for k in range(spec.steps):
         t0 = time.perf_counter()
-        current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify, noise,
-                                                              log)
+        try:
+            current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
+                                                                  noise, log)
+        except InputError as e:
+            raise LoopError(f"closed loop step {k + 1}: {e}") from e
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
                                     sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
             log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
-    final = _identified(identify(current, observations_from_steps(truth.steps), noise)) if use_identify else None
+    final = _identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT)) if use_identify else None
     return {
         "scenario": model_sc.name, "truth": {"name": truth_sc.name, **_friction(truth_sc)},
         "model": _friction(model_sc), "plan": spec.to_dict(), "identify": use_identify,

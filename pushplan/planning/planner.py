@@ -132,7 +132,8 @@ def _iteration_line(it: Iteration, spec: PlanSpec) -> str:
 
 def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tuple[PushParameters, Springback]:
     """The reduced model fitted to the naive push (and for a yaw target a pure rotation)
-    on the planning mesh, and the spring-back of its release."""
+    on the planning mesh from the pressed block at rest (its compliances are the block's,
+    whatever was executed before a re-plan), and the spring-back of its release."""
     calib = coarse.rollout(naive, release=spec.target_state == "rest")
     springback = Springback(0.0, 0.0)
     if calib.rest is not None:
@@ -142,7 +143,7 @@ def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tu
     twist = None
     if spec.yaw_targeted:
         twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False)
-    params = calibrate(coarse.model, calib.reports, twist.reports if twist else None)
+    params = calibrate(coarse.model, calib.reports, twist.reports if twist else None, log=log)
     _log_line(log, f"calibrated on {coarse.label} mesh {spec.planning_elements}: compliance "
                    f"{params.compliance:.4g} m/N, normal force {params.normal_force:.5g} N"
               + (f", torsion compliance {params.torsion_compliance:.4g} rad/(N m), max torque "
@@ -195,7 +196,8 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -
     fine = FeRollouts(scenario.model(), press, "verification", release=release, after=after)
     naive = naive_commands(spec)
     t0 = time.perf_counter()
-    params, springback = _calibrate(coarse, spec, naive, log)
+    at_rest = coarse if not after else FeRollouts(coarse.model, press, "planning", release=release)
+    params, springback = _calibrate(at_rest, spec, naive, log)
     timings["calibration"] = time.perf_counter() - t0
 
     loop = _Correction(ReducedPlanner(params, spec, springback), timings, log)

@@ -222,7 +222,28 @@ def lower_face_torque(model, report: StepReport) -> float:
     return -float(((X[:, 0] - c[0]) * r[:, 1] - (X[:, 1] - c[1]) * r[:, 0]).sum())
 
 
-def calibrate(model, push_reports, twist_reports=None) -> PushParameters:
+def elastic_estimate(model, normal_force: float) -> dict:
+    """The reduced model's spring from the block's elasticity alone, for when a rollout
+    cannot calibrate it: shear ``C = h / (G A)``, torsion ``C_theta = h / (G J_p)`` with
+    the polar moment ``J_p = lx ly (lx^2 + ly^2) / 12`` (m/N, rad/(N m)), and the torque
+    of uniform-pressure sliding ``tau_max = N sqrt(mu_x mu_y) <|r|>`` over the lower face (N m)."""
+    lx, ly, lz = model.mesh.size
+    G = model.material.lame_mu
+    X = model.mesh.nodes[model.mesh.lower][:, :2]
+    a = model.lower_area
+    mean_r = float((a * np.linalg.norm(X - (a[:, None] * X).sum(axis=0) / a.sum(), axis=1)).sum() / a.sum())
+    fr = model.friction
+    return {"compliance": 1.0 / model.shear_stiffness, "torsion_compliance": lz / (G * lx * ly * (lx**2 + ly**2) / 12),
+            "max_torque": abs(normal_force) * math.sqrt(fr.mu_x * fr.mu_y) * mean_r}
+
+
+def _ratio(num: float, den: float) -> float | None:
+    """``num / den`` when it is a positive finite compliance, else None (cannot calibrate)."""
+    c = num / den if den > 0 else math.nan
+    return c if math.isfinite(c) and c > 0 else None
+
+
+def calibrate(model, push_reports, twist_reports=None, log=None) -> PushParameters:
     """Fit the reduced model to FE rollouts on one mesh.
 
     Parameters
@@ -230,7 +251,8 @@ def calibrate(model, push_reports, twist_reports=None) -> PushParameters:
     model : fe_contact.Model
         The model the reports come from (friction, mesh).
     push_reports : sequence of StepReport
-        The push steps (after the press) of an in-plane push.  The compliance is the
+        The push steps (after the press) of an in-plane push from the block at rest.
+        The compliance is the
         least-squares ratio of the centroid lag to the drive force over all steps
         (elastic in stick and slip alike); the normal force is the last step's.
     twist_reports : sequence of StepReport, optional
@@ -239,6 +261,10 @@ def calibrate(model, push_reports, twist_reports=None) -> PushParameters:
         torsional compliance is the least-squares ratio of the yaw lag to the drive
         torque, ``max_torque`` the last step's torque.  Without it the model is
         translation-only.
+    log : callable(str), optional
+        Told when a ratio is not a positive compliance (rollouts from a loaded state, a
+        torque that reverses) and :func:`elastic_estimate` stands in: the FE
+        correction of the planner then does the rest.  Never a negative compliance.
 
     Raises
     ------
@@ -256,16 +282,19 @@ def calibrate(model, push_reports, twist_reports=None) -> PushParameters:
     ff = float((force * force).sum())
     if ff <= 0:
         raise ValueError("calibration push transmits no tangential force (block not pressed?)")
-    compliance = float((lag * force).sum()) / ff
-    kwargs = {}
+    normal = push_reports[-1].normal_force
+    fallback = elastic_estimate(model, normal)
+    fitted = {"compliance": _ratio(float((lag * force).sum()), ff)}
     if twist_reports:
         theta = np.cumsum([r.command.dtheta for r in twist_reports])
         yaw = np.array([r.lower_yaw for r in twist_reports])
         torque = np.array([lower_face_torque(model, r) for r in twist_reports])
-        kwargs = {
-            "torsion_compliance": float(((theta - yaw) * torque).sum() / (torque * torque).sum()),
-            "max_torque": abs(float(torque[-1])),
-        }
-    return PushParameters(mu_x=fr.mu_x, mu_y=fr.mu_y, angle=fr.angle,
-                          normal_force=push_reports[-1].normal_force, compliance=compliance, **kwargs)
-
+        fitted["torsion_compliance"] = _ratio(float(((theta - yaw) * torque).sum()), float((torque * torque).sum()))
+        fitted["max_torque"] = abs(float(torque[-1])) or None
+    for k, v in fitted.items():
+        if v is None:
+            fitted[k] = fallback[k]
+            if log is not None:
+                log(f"calibration: the rollout gives no positive {k}; the elastic estimate {fallback[k]:.4g} "
+                    "stands in (the FE correction does the rest)")
+    return PushParameters(mu_x=fr.mu_x, mu_y=fr.mu_y, angle=fr.angle, normal_force=normal, **fitted)
