@@ -54,9 +54,14 @@ class ReducedPlanner:
     ``rho_k`` in [0, 1] (1 = on the surface) and the slip length ``sigma_k >= 0`` (in
     units of ``max_step``).  Poses follow explicitly: the lower face slips along the
     surface normal, the upper face leads it by the elastic lag.
+
+    ``initial_lag`` (3,) ``upper - lower`` at the start (m, m, rad): zero from the pressed
+    block at rest; a re-plan starts from the loaded state the executed pushes left, whose
+    drive force is already on (or near) the limit surface.
     """
 
-    def __init__(self, params: PushParameters, spec: PlanSpec, springback: Springback | None = None):
+    def __init__(self, params: PushParameters, spec: PlanSpec, springback: Springback | None = None,
+                 initial_lag=(0.0, 0.0, 0.0)):
         import casadi as ca
 
         if spec.yaw_targeted and not params.rotation:
@@ -74,7 +79,8 @@ class ReducedPlanner:
         R = ca.DM(params.frame)
         N, mx, my = params.normal_force, params.mu_x, params.mu_y
         mbar = math.sqrt(mx * my)
-        lower, upper, cmds = [ca.DM.zeros(3, 1)], [ca.DM.zeros(3, 1)], []
+        lag0 = np.asarray(initial_lag, float) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
+        lower, upper, cmds = [ca.DM.zeros(3, 1)], [ca.DM(lag0)], []
         effort = 0
         for k in range(K):
             a = A[:, k]

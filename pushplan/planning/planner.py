@@ -151,6 +151,13 @@ def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tu
     return params, springback
 
 
+def _start_lag(fe: FeRollouts) -> np.ndarray:
+    """``upper - lower`` (m, m, rad) of the state a re-plan starts from (after the executed pushes)."""
+    pressed = fe.pressed()
+    rep = pressed.reports[-1]
+    return np.array([*rep.lag, pressed.state.upper_rotation - rep.lower_yaw])
+
+
 def _status(spec: PlanSpec, verified: Rollout, reach: str) -> tuple[str, str]:
     """The plan's status and message (``reach``: :func:`~.target.reach_message`)."""
     if not spec.reachable:
@@ -200,7 +207,8 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -
     params, springback = _calibrate(at_rest, spec, naive, log)
     timings["calibration"] = time.perf_counter() - t0
 
-    loop = _Correction(ReducedPlanner(params, spec, springback), timings, log)
+    loop = _Correction(ReducedPlanner(params, spec, springback, _start_lag(coarse) if after else np.zeros(3)),
+                       timings, log)
     loop.run("planning", coarse)
     loop.run("verification", fine)
 
