@@ -180,3 +180,39 @@ def test_calibration_never_returns_a_negative_compliance():
     rest = calibrate(model, push.reports, fe.rollout(np.tile([0.0, 0.0, 0.05], (2, 1))).reports)
     assert rest.torsion_compliance != est["torsion_compliance"]
     assert rest.torsion_compliance == pytest.approx(est["torsion_compliance"], rel=0.2)
+
+
+def _loop(tmp_path, model_text, truth_text):
+    (tmp_path / "m.toml").write_text(model_text)
+    (tmp_path / "t.toml").write_text(truth_text)
+    code = main(["closed-loop", str(tmp_path / "m.toml"), "--truth", str(tmp_path / "t.toml"), "--out",
+                 str(tmp_path / "cl"), "--quiet", "--no-recording", "--identify"])
+    return code, json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+
+
+def test_closed_loop_reaches_a_yaw_target_on_a_finer_stiffer_truth(tmp_path):
+    # issue 29 acceptance: friction 30 % and Young's modulus 20 % off, the truth on a finer mesh
+    model = YAW_MODEL.format(young=5e6, mu_x=0.8, mu_y=0.3) + YAW_PLAN
+    truth = YAW_MODEL.format(young=6e6, mu_x=1.04, mu_y=0.39).replace("[4, 4, 2]", "[6, 6, 3]")
+    code, doc = _loop(tmp_path, model, truth)
+    closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
+    assert code == 0 and closed["within_tolerance"], closed
+    assert closed["position"] <= 4e-6 and closed["yaw_deg"] <= 0.1
+    assert open_["position"] >= 5 * closed["position"] and open_["yaw_deg"] >= 5 * closed["yaw_deg"]
+    assert doc["scored_on"] == "loaded pose"
+
+
+def test_closed_loop_reaches_a_rest_target_scored_on_the_truths_release(tmp_path):
+    from test_plan_release import PLAN
+
+    truth = (PLAN.split("[plan]")[0].replace("mu_x = 0.6", "mu_x = 0.78").replace("mu_y = 0.2", "mu_y = 0.26")
+             .replace("young = 2e6", "young = 2.4e6").replace("elements = [4, 3, 2]", "elements = [8, 6, 3]"))
+    code, doc = _loop(tmp_path, PLAN, truth)
+    closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
+    assert doc["scored_on"] == "rest pose after the truth's release"
+    assert code == 0 and closed["within_tolerance"] and closed["position"] <= 1e-5, closed
+    assert open_["position"] >= 5 * closed["position"]
+    # the score is the rest pose, not the last loaded one (the release moves the block)
+    loaded = doc["iterations"][-1]["observed_pose"]
+    rest = doc["closed_loop"]["final_pose"]
+    assert math.hypot(rest[0] - loaded[0], rest[1] - loaded[1]) > 100 * closed["position"]

@@ -10,6 +10,7 @@ identification weights them with the stated noise model.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -54,8 +55,10 @@ class Truth:
     state: State
     reports: list[StepReport] = field(default_factory=list)
     steps: list[StepSummary] = field(default_factory=list)
+    last: tuple = (None, ())  # the state before the last commands, and those commands
 
     def execute(self, commands) -> None:
+        self.last = (self.state, tuple(commands))
         run = drive(self.model, tuple(commands), self.state)
         if not run.completed:
             f = run.summary.failure
@@ -63,6 +66,19 @@ class Truth:
         self.state = run.state
         self.reports += run.reports
         self.steps += run.summary.steps
+
+    def rest_pose(self, release) -> np.ndarray:
+        """The lower-face pose ``(x, y, yaw)`` (m, rad) at rest after ``release`` from the
+        current state (the state itself is kept: the truth can go on).  The last commands
+        are re-run with the release, as ``drive`` schedules a release from the last step's
+        report (the same steps, so the same loaded state)."""
+        start, commands = self.last
+        run = drive(self.model, commands, start, release=release)
+        if not run.completed or run.summary.rest is None:
+            f = run.summary.failure
+            raise TruthFailure(f"truth release failed at step {f.step} ({f.status}): {f.message}")
+        r = run.summary.rest
+        return np.array([r.lower_centroid[0], r.lower_centroid[1], r.lower_yaw])
 
     @property
     def pose(self) -> np.ndarray:
@@ -119,7 +135,22 @@ def _new_truth(truth_scenario: Scenario, press) -> Truth:
     return t
 
 
-def _step(model_sc, spec, truth, k, first, use_identify, noise, log):
+REPLAN_TOLERANCE = 0.25
+"""Re-plans aim within this fraction of the tolerances: the rest is left to what the
+model does not predict of the truth's next push."""
+
+
+def _shifted(spec: PlanSpec, bias: np.ndarray) -> PlanSpec:
+    """``spec`` aiming at ``target - bias``: the truth's error over the model's on the last
+    push (``bias``, (3,) m, m, rad) taken to persist (modifier adaptation on the truth),
+    within :data:`REPLAN_TOLERANCE` of the tolerances."""
+    mask = np.array([1.0, 1.0, float(spec.yaw_targeted)])
+    return dataclasses.replace(spec, target=tuple(float(v) for v in np.array(spec.target) - mask * bias),
+                               tolerance=REPLAN_TOLERANCE * spec.tolerance,
+                               yaw_tolerance=REPLAN_TOLERANCE * spec.yaw_tolerance)
+
+
+def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
     """Plan (or re-plan) with the current model and execute the next push on the truth."""
     identified = None
     if k == 0:
@@ -132,45 +163,61 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log):
             model_sc = est.scenario(model_sc)
             if log:
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
-        result, _ = replan(model_sc, spec, obs)
+        result, _ = replan(model_sc, _shifted(spec, bias), obs)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
+    planned[1:] += bias  # what the plan expects of the truth
     truth.execute([command])
     return model_sc, result, command, identified, planned
+
+
+def _final(truth: Truth, spec: PlanSpec, release) -> np.ndarray:
+    """The pose scored against the target: the truth's rest pose after its release for a
+    rest target, else its loaded pose."""
+    return truth.rest_pose(release) if spec.target_state == "rest" else truth.pose
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
                 noise: NoiseModel | None = None, log=None) -> dict:
     """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
-    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing)."""
+    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
+
+    After each push the re-plan aims at ``target - bias``, ``bias`` the truth's pose less
+    the pose the plan expected after that push.  A rest target is scored on the truth's
+    rest pose after the release (the truth scenario's ``[release]``, else the model's)."""
     t_start = time.perf_counter()
     noise = noise or NoiseModel()
     press = press_commands(model_sc)
+    release = truth_sc.release or model_sc.release
     first = plan(model_sc, spec)
     open_truth = _new_truth(truth_sc, press)
     open_truth.execute(planar_commands(first.commands))
+    open_final = _final(open_truth, spec, release)
     truth = _new_truth(truth_sc, press)
-    iterations, current = [], model_sc
+    iterations, current, bias = [], model_sc, np.zeros(3)
     for k in range(spec.steps):
         t0 = time.perf_counter()
         try:
             current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
-                                                                  noise, log)
+                                                                  noise, log, bias)
         except InputError as e:
             raise LoopError(f"closed loop step {k + 1}: {e}") from e
+        bias = truth.pose - planned[1] + bias  # planned[1] holds the old bias
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
                                     sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
             log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
+    final_pose = _final(truth, spec, release)
     final = _identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT)) if use_identify else None
     return {
         "scenario": model_sc.name, "truth": {"name": truth_sc.name, **_friction(truth_sc)},
         "model": _friction(model_sc), "plan": spec.to_dict(), "identify": use_identify,
+        "scored_on": "rest pose after the truth's release" if spec.target_state == "rest" else "loaded pose",
         "open_loop": {"commands": [command_to_dict(c) for c in planar_commands(first.commands)],
-                      "final_pose": _pose_json(open_truth.pose), "final_error": _error(open_truth.pose, spec)},
+                      "final_pose": _pose_json(open_final), "final_error": _error(open_final, spec)},
         "closed_loop": {"commands": [command_to_dict(it.command) for it in iterations],
-                        "final_pose": _pose_json(truth.pose), "final_error": _error(truth.pose, spec)},
+                        "final_pose": _pose_json(final_pose), "final_error": _error(final_pose, spec)},
         "final_estimates": final,
         "iterations": [it.to_dict() for it in iterations],
         "wall_time_s": time.perf_counter() - t_start,
