@@ -6,8 +6,10 @@ path behind it, the friction it was planned with, the estimates) and ``DIR/recor
 (the truth's closed-loop run; at each push ``plan/replanned``, the plan behind it; the
 closed- and open-loop paths of the lower face as ``plan/verified`` / ``plan/naive``).
 
-Exit status 3 when the closed loop ends outside the tolerance (the files are written);
-2 for bad input (nothing written).
+A rest target is scored on the truth's rest pose after its release.  Exit status 3 when
+the closed loop ends outside the tolerance or a solver fails inside it (the files are
+written when the loop finished); 2 for bad input (nothing written), checked before the
+loop starts: a failure inside the loop is never 2 (a bug there exits 1 with its traceback).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ def cmd_closed_loop(args) -> int:
     spec = parse_plan(scenario)
     truth = load_scenario(args.truth)
     truth.model()
-    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel)
+    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, force_resolution=args.force_resolution)
     out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     doc = closed_loop(scenario, truth, spec, args.identify, noise, log)
@@ -76,6 +78,7 @@ def register(subparsers) -> None:
     p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise of the identification, m")
     p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N")
     p.add_argument("--force-noise-rel", type=float, default=0.01, help="relative force noise")
+    p.add_argument("--force-resolution", type=float, default=1e-3, help="force sensor resolution, N (smallest sigma)")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_closed_loop)

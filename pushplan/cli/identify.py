@@ -4,8 +4,11 @@ write ``identified.json`` and ``identified.toml``; ``--suggest N`` proposes N pu
 
 The scenario gives the block, mesh, material, solver and the initial friction; its
 ``[[load]]`` entries are not used (the observation file holds the executed commands).
-Exit status 3 when the fit did not converge (the files are written); 2 for bad input
-(nothing written).
+Several observation files (``--observations A.csv B.csv``) are fitted together, each
+run from its own press.  ``--suggest N`` also writes ``suggested_commands.json``, which
+``pushplan simulate --commands`` runs as it is.  Exit status 0 when the fit converged
+(its intervals in ``identified.json``; a reduced chi-square far above 1 is a warning),
+3 when the fit failed (the files are written); 2 for bad input (nothing written).
 """
 
 from __future__ import annotations
@@ -26,6 +29,15 @@ def _print(result, doc) -> None:
           f"{s['iterations']} LM iterations, {s['fe_rollouts']} FE rollouts, {s['wall_time_s']:.2f} s")
 
 
+def _commands_file(suggested: dict) -> dict:
+    """``suggested_commands.json``: the suggested experiment as a bare ``commands`` list
+    (no scenario fingerprint, so ``simulate --commands`` runs it on any block)."""
+    return {"commands": suggested["commands"],
+            "description": "pushplan identify --suggest: the press, then one push per suggested direction "
+                           f"({', '.join(f'{d:g}' for d in suggested['directions_deg'])} deg from world x); "
+                           "dx, dy, dz in m, dtheta_deg in degrees, each an increment of the upper face"}
+
+
 def cmd_identify(args) -> int:
     from ..config import load_scenario
     from ..config.observations import read_observations
@@ -35,8 +47,9 @@ def cmd_identify(args) -> int:
     from ..outputs.toml import toml_text
 
     scenario = load_scenario(args.scenario)
-    obs = read_observations(args.observations)
-    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, args.yaw_noise_deg)
+    obs = tuple(read_observations(path) for path in args.observations)
+    noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, args.yaw_noise_deg,
+                       args.force_resolution)
     noise.sigma(obs, scenario.size)  # noise checks before anything is written
     scenario.model()
     fit = ("mu_x", "mu_y", "angle_deg") + (("young",) if args.fit == "young" else ())
@@ -47,18 +60,23 @@ def cmd_identify(args) -> int:
     out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     result = identify(scenario, obs, noise, fit, log=log)
-    doc = identified_document(result, scenario, obs, noise, str(args.observations))
+    sources = ", ".join(args.observations)
+    doc = identified_document(result, scenario, obs, noise, sources)
     if args.suggest:
         from ..identify.design import suggest
 
-        doc["suggested"] = suggest(result.scenario(scenario), obs, noise, args.suggest, fit).to_dict()
+        doc["suggested"] = suggest(result.scenario(scenario), obs[0], noise, args.suggest, fit).to_dict()
+        atomic_write_json(out / "suggested_commands.json", _commands_file(doc["suggested"]))
     atomic_write_json(out / "identified.json", doc)
     atomic_write_bytes(out / "identified.toml", toml_text(
         identified_scenario(result, scenario), f"{scenario.name} with the friction identified by pushplan identify "
-        f"from {args.observations}").encode())
+        f"from {sources}").encode())
     _print(result, doc)
+    for w in doc["uncertainty"]["warnings"]:
+        print(f"pushplan: warning: {w}", file=sys.stderr)
     if args.suggest:
-        print(f"  suggested pushes (deg from world x): {doc['suggested']['directions_deg']}")
+        print(f"  suggested pushes (deg from world x): {doc['suggested']['directions_deg']}; "
+              f"commands in {out / 'suggested_commands.json'} (for simulate --commands or a robot)")
     print(f"  wrote {out / 'identified.json'}, {out / 'identified.toml'}")
     if not result.converged:
         print("pushplan: the fit did not converge; the last iterate is written", file=sys.stderr)
@@ -69,7 +87,8 @@ def cmd_identify(args) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser("identify", help="estimate the friction (mu_x, mu_y, angle) from observed pushes")
     p.add_argument("scenario", help="scenario TOML: block, mesh, material and the initial friction")
-    p.add_argument("--observations", required=True, help="observation file (.csv or .json)")
+    p.add_argument("--observations", required=True, nargs="+", metavar="FILE",
+                   help="observation files (.csv or .json), each from its own press")
     p.add_argument("--out", required=True, help="output folder (identified.json, identified.toml)")
     p.add_argument("--fit", choices=["young"], help="also estimate Young's modulus")
     p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise, m (default 1e-6)")
@@ -78,6 +97,8 @@ def register(subparsers) -> None:
     p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N (default 1)")
     p.add_argument("--force-noise-rel", type=float, default=0.01,
                    help="force noise as a fraction of each observed value (default 0.01)")
+    p.add_argument("--force-resolution", type=float, default=1e-3,
+                   help="force sensor resolution, N: the smallest force sigma (default 1e-3)")
     p.add_argument("--suggest", type=int, metavar="N", help="propose N push directions that identify the friction")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_identify)

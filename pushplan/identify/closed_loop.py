@@ -158,7 +158,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
     else:
         obs = observations_from_steps(truth.steps)
         if use_identify:
-            est = identify(model_sc, obs, noise, LOOP_FIT)
+            est = identify(model_sc, obs, noise, LOOP_FIT, model_error=False)
             identified = _identified(est)
             model_sc = est.scenario(model_sc)
             if log:
@@ -209,7 +209,8 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
             log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
     final_pose = _final(truth, spec, release)
-    final = _identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT)) if use_identify else None
+    final = (_identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT, model_error=False))
+             if use_identify else None)
     return {
         "scenario": model_sc.name, "truth": {"name": truth_sc.name, **_friction(truth_sc)},
         "model": _friction(model_sc), "plan": spec.to_dict(), "identify": use_identify,

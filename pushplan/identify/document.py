@@ -10,6 +10,7 @@ import numpy as np
 from ..config.observations import Observations
 from ..config.scenario import Scenario
 from .fit import Identification
+from .forward import as_files
 from .noise import NoiseModel
 
 
@@ -20,11 +21,35 @@ def _finite(v: float):
 
 def parameters_json(result: Identification) -> dict:
     out = {}
+    unc = result.uncertainty
     for j, k in enumerate(result.names):
+        lo, hi = result.interval[j]
         out[k] = {"initial": float(result.initial[j]), "start": float(result.start[j]),
                   "estimate": float(result.estimate[j]), "sigma": _finite(result.sigma[j]),
+                  "sigma_linearised": None if result.sigma_linear is None else _finite(result.sigma_linear[j]),
+                  "interval_95": [_finite(lo), _finite(hi)],
+                  "interval_method": _method(unc, j, k),
                   "identifiable": result.identifiable[j], "reason": result.reasons.get(k)}
     return out
+
+
+def _method(unc, j: int, name: str) -> str:
+    """Which interval is reported for parameter ``j`` and why."""
+    if unc is None:
+        return "linearised (Gauss-Newton covariance)"
+    parts = []
+    if unc.method[j] == "profile":
+        r = unc.profile_ratio[j]
+        parts.append(f"profile along the linearised path: chi2 rose by {min(r):.2g} of the linear rise at 2 sigma, "
+                     "so the chi-square surface, not the Gauss-Newton curvature, sets the width")
+    else:
+        parts.append("linearised (Gauss-Newton covariance; the chi-square surface agrees at 2 sigma"
+                     + ("" if np.isfinite(unc.profile_ratio[j]).all() else ", not checked") + ")")
+    if unc.chi2_factor > 1.0:
+        parts.append(f"inflated by the reduced chi2 {unc.chi2_factor:.3g}")
+    if unc.discretisation_chi2 is not None:
+        parts.append(f"plus the discretisation shift {unc.discretisation[j]:.3g} (two-mesh Richardson estimate)")
+    return "; ".join(parts)
 
 
 def identified_document(result: Identification, scenario: Scenario, obs: Observations, noise: NoiseModel,
@@ -32,22 +57,28 @@ def identified_document(result: Identification, scenario: Scenario, obs: Observa
     """The ``identified.json`` content.
 
     ``parameters.<name>``: ``initial`` (the scenario's value), ``start`` (the reduced-model
-    estimate the FE fit starts from, or the initial value), ``estimate``, ``sigma``
-    (Gauss-Newton standard deviation, null when undetermined), ``identifiable`` and
-    ``reason``; ``correlation`` in the order of ``parameters`` (null where undetermined);
+    estimate the FE fit starts from, or the initial value), ``estimate``, ``sigma`` (the
+    reported standard deviation of :mod:`.uncertainty`, null when undetermined),
+    ``sigma_linearised`` (Gauss-Newton, noise only), ``interval_95`` and ``interval_method``
+    (which interval and why), ``identifiable`` and ``reason``; ``uncertainty``: the
+    chi-square factor, the discretisation shift, the profile check and the warnings;
+    ``correlation`` in the order of ``parameters`` (null where undetermined);
     ``residual``: chi-square of the whitened residual before / after, its reduced form
     and the RMS of the whitened residual per column; ``solver.fe_rollouts`` counts every
     FE rollout of the observed commands (residuals and finite differences).
     """
     dof = result.n_values - len(result.names)
     corr = [[_finite(v) for v in row] for row in np.asarray(result.correlation)]
+    files = as_files(obs)
     return {
         "scenario": scenario.name,
-        "observations": {"file": source, "rows": len(obs), "columns": list(obs.columns)},
+        "observations": {"file": source, "rows": sum(len(o) for o in files),
+                         "columns": sorted({k for o in files for k in o.columns})},
         "noise": noise.to_dict(scenario.size),
         "parameters": parameters_json(result),
         "correlation": corr,
         "identifiable": all(result.identifiable),
+        "uncertainty": None if result.uncertainty is None else result.uncertainty.to_dict(result.names),
         "residual": {"chi2_initial": result.chi2_initial, "chi2": result.chi2, "values": result.n_values,
                      "dof": dof, "reduced_chi2": result.chi2 / dof if dof > 0 else None,
                      "rms_whitened": result.residual_rms},

@@ -8,7 +8,9 @@ estimate the Gauss-Newton covariance is
 
     Cov = (J^T J)^-1                       (computed from the SVD of J),
 
-whose diagonal gives the standard deviations and whose scaled form the correlation.
+widened by the model's error and checked against the chi-square surface
+(:mod:`.uncertainty`); the diagonal of the result gives the reported standard
+deviations and its scaled form the correlation.
 A parameter is *identifiable* when its standard deviation is finite and below
 :data:`REL_SIGMA_LIMIT` of its value (``mu``, ``young``) or :data:`ANGLE_SIGMA_LIMIT_DEG`;
 :mod:`.reasons` says why not.  The fit starts from the reduced-model estimate of
@@ -28,16 +30,20 @@ import numpy as np
 from ..config.observations import Observations
 from ..config.scenario import Scenario
 from ..errors import InputError
-from .forward import PARAMETERS, FePredictor, stacked, with_parameters
+from .forward import PARAMETERS, FePredictor, IdentificationError, as_files, stacked, with_parameters
 from .noise import NoiseModel
 from .prefit import nearest_angle, prefit
 from .reasons import identifiability
+from .uncertainty import (REFINEMENT, Z95, Uncertainty, chi2_factor, chi2_warning, combine, discretisation_shift,
+                          profile_sigmas)
 
 FIT_CHOICES = PARAMETERS
 DEFAULT_FIT = ("mu_x", "mu_y", "angle_deg")
 MAX_ITERATIONS = 15
 STEP_TOL = 1e-5
 """Stop when the scaled step is below this (units: mu 0.1, angle 1 deg, young itself)."""
+STAT_STEP_TOL = 1e-2
+"""... or when every component of the step is below this fraction of its standard deviation."""
 FD_STEP = {"mu_x": 1e-5, "mu_y": 1e-5, "angle_deg": 1e-3, "young": 1e-6}
 """Forward-difference steps (absolute; young relative), well above the solver's noise."""
 SINGULAR_RTOL = 1e-9
@@ -71,6 +77,15 @@ class Identification:
     jacobian: np.ndarray = field(repr=False)
     wall_time: float = 0.0
     prefit_used: bool = False
+    sigma_linear: np.ndarray | None = None
+    uncertainty: Uncertainty | None = field(default=None, repr=False)
+
+    @property
+    def interval(self) -> np.ndarray:
+        """(p, 2) 95 % bounds (``estimate +- 1.96 sigma``)."""
+        if self.uncertainty is not None:
+            return self.uncertainty.interval
+        return np.column_stack([self.estimate - Z95 * self.sigma, self.estimate + Z95 * self.sigma])
 
     def value(self, name: str) -> float:
         return float(self.estimate[self.names.index(name)])
@@ -145,7 +160,7 @@ def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None)
         else:
             converged = True  # no descent along the damped steps: a minimum to the FD accuracy
             break
-        small = np.max(np.abs((trial - theta)[free] / D)) < STEP_TOL
+        small = np.max(np.abs((trial - theta)[free] / D)) < STEP_TOL or _negligible(Jf, D, (trial - theta)[free])
         theta, r, lam = trial, r_trial, max(lam / 3.0, 1e-7)
         if log is not None:
             log(f"  LM iteration {it}: chi2 {r @ r:.6g}, " + ", ".join(f"{k} = {v:.6g}" for k, v in zip(names, theta)))
@@ -154,6 +169,15 @@ def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None)
             break
     J = _jacobian(predict, y, sigma, names, theta, r)
     return theta, r, J, it, converged
+
+
+def _negligible(J, D, step) -> bool:
+    """Whether every component of ``step`` is below :data:`STAT_STEP_TOL` of its
+    Gauss-Newton standard deviation: the estimate no longer moves on the scale its
+    noise can resolve (a flat, non-smooth chi-square would otherwise run out of iterations)."""
+    cov, undetermined = covariance(J, D)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return bool(np.all(undetermined | (np.abs(step) < STAT_STEP_TOL * sd)))
 
 
 def covariance(J: np.ndarray, D: np.ndarray):
@@ -176,14 +200,23 @@ def _correlation(cov, undetermined) -> np.ndarray:
     return corr
 
 
-def _rms(obs: Observations, r: np.ndarray) -> dict:
-    K = len(obs)
-    return {k: float(np.sqrt(np.mean(r[i * K:(i + 1) * K] ** 2))) for i, k in enumerate(obs.columns)}
+def _rms(obs, r: np.ndarray) -> dict:
+    """RMS of the whitened residual per column, over every file."""
+    squares: dict = {}
+    i = 0
+    for o in as_files(obs):
+        for k in o.columns:
+            squares.setdefault(k, []).append(r[i:i + len(o)] ** 2)
+            i += len(o)
+    return {k: float(np.sqrt(np.mean(np.concatenate(v)))) for k, v in squares.items()}
 
 
-def identify(scenario: Scenario, obs: Observations, noise: NoiseModel | None = None, fit=DEFAULT_FIT,
-             log=None) -> Identification:
-    """Estimate the parameters ``fit`` from ``obs`` (see the module docstring).
+def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAULT_FIT,
+             log=None, model_error: bool = True) -> Identification:
+    """Estimate the parameters ``fit`` from ``obs`` (one :class:`Observations` or several,
+    each from its own press; see the module docstring).  ``model_error`` False skips the
+    refined-mesh rollout and the chi-square profile checks of :mod:`.uncertainty` (the
+    chi-square rule still applies).
 
     Raises
     ------
@@ -198,7 +231,7 @@ def identify(scenario: Scenario, obs: Observations, noise: NoiseModel | None = N
     for k in names:
         if k not in FIT_CHOICES:
             raise InputError(f"--fit {k}: unknown parameter (choose from {', '.join(FIT_CHOICES)})")
-    if not obs.columns:
+    if not any(o.columns for o in as_files(obs)):
         raise InputError("observations: no observed column (lower_x, ..., force_z) to fit")
     y, sigma = stacked(obs), noise.sigma(obs, scenario.size)
     if y.size < len(names):
@@ -231,21 +264,57 @@ def identify(scenario: Scenario, obs: Observations, noise: NoiseModel | None = N
         theta, r, J, more, converged = levenberg_marquardt(predict, y, sigma, names, theta, free, log, J)
         iterations += more
     theta = _normalise_angle(names, theta, scenario.angle_deg)
-    flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
+    _, _, cov0, sd0, undetermined = _assess(names, theta, J, obs, noise)
+    fitted_rollouts = predict.count
+    unc = _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, free & ~undetermined, predict, model_error)
+    cov = unc.covariance
+    flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise, cov)
+    if log is not None:
+        for w in unc.warnings:
+            log("  warning: " + w)
     return Identification(
         names=names, initial=initial, start=start, estimate=theta, sigma=sd,
         correlation=_correlation(cov, undetermined), identifiable=flags, reasons=reasons,
         chi2_initial=chi2_initial, chi2=float(r @ r), n_values=int(y.size), residual_rms=_rms(obs, r),
-        iterations=iterations, converged=converged, fe_rollouts=predict.count, jacobian=J,
-        wall_time=time.perf_counter() - t0, prefit_used=used,
+        iterations=iterations, converged=converged, fe_rollouts=fitted_rollouts + unc.fe_rollouts, jacobian=J,
+        wall_time=time.perf_counter() - t0, prefit_used=used, sigma_linear=sd0, uncertainty=unc,
     )
 
 
-def _assess(names, theta, J, obs, noise):
-    """Covariance, standard deviations and identifiability at ``theta``."""
-    cov, undetermined = covariance(J, scales(names, theta))
+def _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, check, predict, model_error) -> Uncertainty:
+    """The reported covariance of :mod:`.uncertainty` at the estimate."""
+    dof = y.size - len(names)
+    chi2 = float(r @ r)
+    s2 = chi2_factor(chi2, dof)
+    shift, mesh_chi2, count = np.zeros(len(names)), None, predict.count
+    ratios, sd_profile = np.full((len(names), 2), np.nan), np.sqrt(np.maximum(np.diag(cov0), 0.0))
+    fine = None
+    if model_error:
+        fine = FePredictor(scenario, obs, names, elements=tuple(REFINEMENT * e for e in scenario.elements))
+        shift, mesh_chi2 = discretisation_shift(J, sigma, r * sigma + y, fine(theta), cov0)
+
+        def chi2_at(t):
+            try:
+                return float(np.sum(_residual(predict, y, sigma, _clip(names, t)) ** 2))
+            except IdentificationError:
+                return np.inf  # a rollout that fails this far out bounds the interval
+
+        ratios, sd_profile = profile_sigmas(chi2_at, theta, cov0, chi2, check)
+    C, interval, method = combine(names, theta, cov0, s2, shift, sd_profile, ratios)
+    warning = chi2_warning(chi2, dof, s2, mesh_chi2)
+    return Uncertainty(sigma=np.sqrt(np.maximum(np.diag(C), 0.0)), interval=interval, method=method, covariance=C,
+                       chi2_factor=s2, discretisation=shift, discretisation_chi2=mesh_chi2, profile_ratio=ratios,
+                       warnings=(warning,) if warning else (),
+                       fe_rollouts=predict.count - count + (fine.count if fine else 0))
+
+
+def _assess(names, theta, J, obs, noise, cov=None):
+    """Covariance (the Gauss-Newton one unless ``cov`` is given), standard deviations and
+    identifiability at ``theta``."""
+    cov0, undetermined = covariance(J, scales(names, theta))
+    cov = cov0 if cov is None else cov
     sd = np.where(undetermined, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
-    flags, reasons = identifiability(names, theta, sd, obs, noise.pose_noise)
+    flags, reasons = identifiability(names, theta, sd, obs, noise.pose_noise, cov)
     return flags, reasons, cov, sd, undetermined
 
 

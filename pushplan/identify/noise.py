@@ -4,7 +4,11 @@ deviation per observed value.
     pose:   sigma = pose_noise (m) on lower_x, lower_y;
             sigma = yaw_noise (deg) on lower_yaw_deg, by default the angle that moves a
             corner of the lower face by pose_noise: degrees(pose_noise / (min(lx, ly) / 2));
-    force:  sigma_i = sqrt(force_noise^2 + (force_noise_rel * |f_i|)^2) (N) on force_x, _y, _z.
+    force:  sigma_i = max(sqrt(force_noise^2 + (force_noise_rel * |f_i|)^2), force_resolution)
+            (N) on force_x, _y, _z: absolute and relative noise add in quadrature, and no
+            value is known better than the sensor resolves (``--force-noise 0`` with a
+            relative noise would otherwise give a press row's ~1e-15 N forces a sigma of
+            ~1e-17 N and let them dominate the fit).
 """
 
 from __future__ import annotations
@@ -16,7 +20,6 @@ import numpy as np
 
 from ..config.observations import FORCE_COLUMNS, Observations
 from ..config.validate import number
-from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -30,11 +33,13 @@ class NoiseModel:
     force_noise: float = 1.0
     force_noise_rel: float = 0.01
     yaw_noise_deg: float | None = None
+    force_resolution: float = 1e-3
 
     def __post_init__(self):
         number("pose_noise", self.pose_noise, positive=True)
         number("force_noise", self.force_noise, nonneg=True)
         number("force_noise_rel", self.force_noise_rel, nonneg=True)
+        number("force_resolution", self.force_resolution, positive=True)
         if self.yaw_noise_deg is not None:
             number("yaw_noise_deg", self.yaw_noise_deg, positive=True)
 
@@ -44,21 +49,15 @@ class NoiseModel:
         return math.degrees(self.pose_noise / (0.5 * min(size[0], size[1])))
 
     def sigma(self, obs: Observations, size) -> np.ndarray:
-        """Standard deviations stacked like :func:`~pushplan.identify.forward.stacked`.
-
-        Raises
-        ------
-        InputError
-            A force value with zero standard deviation (both force noises 0).
-        """
+        """Standard deviations stacked like :func:`~pushplan.identify.forward.stacked`
+        (one file, or several in order)."""
+        if not isinstance(obs, Observations):
+            return np.concatenate([self.sigma(o, size) for o in obs])
         parts = []
         for k in obs.columns:
             v = obs.values[k]
             if k in FORCE_COLUMNS:
-                s = np.hypot(self.force_noise, self.force_noise_rel * np.abs(v))
-                if np.any(s <= 0):
-                    raise InputError(f"force_noise = {self.force_noise} gives a zero standard deviation "
-                                     f"on a zero {k}: give force_noise > 0")
+                s = np.maximum(np.hypot(self.force_noise, self.force_noise_rel * np.abs(v)), self.force_resolution)
             elif k == "lower_yaw_deg":
                 s = np.full(v.shape, self.yaw_sigma_deg(size))
             else:
@@ -68,4 +67,6 @@ class NoiseModel:
 
     def to_dict(self, size) -> dict:
         return {"pose_noise": self.pose_noise, "yaw_noise_deg": self.yaw_sigma_deg(size),
-                "force_noise": self.force_noise, "force_noise_rel": self.force_noise_rel}
+                "force_noise": self.force_noise, "force_noise_rel": self.force_noise_rel,
+                "force_resolution": self.force_resolution,
+                "force_rule": "max(hypot(force_noise, force_noise_rel |f|), force_resolution)"}

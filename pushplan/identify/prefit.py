@@ -55,19 +55,25 @@ def limit_force(theta, s: np.ndarray) -> np.ndarray:
     return (m**2 * local) @ R.T / np.linalg.norm(m * local, axis=1, keepdims=True)
 
 
-def prefit(obs: Observations, theta0, pose_noise: float):
-    """``(mu_x, mu_y, angle_deg)`` from the sliding rows, or None when the file lacks
-    the columns or has fewer than two sliding rows."""
+def _sliding_forces(obs: Observations, pose_noise: float):
+    """Slip directions (n, 2) and drive forces per normal force (n, 2) of the sliding rows."""
+    if any(k not in obs.values for k in PREFIT_COLUMNS):
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    rows = sliding_rows(obs, pose_noise)
+    g = -np.stack([obs.values["force_x"][rows], obs.values["force_y"][rows]], axis=1)
+    return slip_directions(obs, rows), g / obs.values["force_z"][rows, None]
+
+
+def prefit(obs, theta0, pose_noise: float):
+    """``(mu_x, mu_y, angle_deg)`` from the sliding rows of one observation file or
+    several, or None when they lack the columns or have fewer than two sliding rows."""
     from scipy.optimize import least_squares
 
-    if any(k not in obs.values for k in PREFIT_COLUMNS):
+    files = (obs,) if isinstance(obs, Observations) else tuple(obs)
+    pairs = [_sliding_forces(o, pose_noise) for o in files]
+    s, g = np.vstack([p[0] for p in pairs]), np.vstack([p[1] for p in pairs])
+    if len(s) < 2:
         return None
-    rows = sliding_rows(obs, pose_noise)
-    if len(rows) < 2:
-        return None
-    s = slip_directions(obs, rows)
-    g = -np.stack([obs.values["force_x"][rows], obs.values["force_y"][rows]], axis=1)
-    g = g / obs.values["force_z"][rows, None]
 
     def residual(theta):
         return (limit_force(theta, s) - g).ravel()

@@ -24,11 +24,17 @@ ANGLE_SIGMA_LIMIT_DEG = 5.0
 AXIS_CONE_DEG = 10.0
 """Pushes within this angle of an orthotropy axis count as along it."""
 ISOTROPY_REL = 0.05
+ANISOTROPY_SIGMAS = 3.0
+"""The orthotropy angle is identifiable only when ``|mu_x - mu_y|`` exceeds this many of
+its standard deviations ``sqrt(V_xx + V_yy - 2 V_xy)``: data that cannot tell the two
+coefficients apart have no axis, however small the angle's own sigma came out."""
 
 
-def push_directions(obs: Observations, pose_noise: float) -> np.ndarray:
+def push_directions(obs, pose_noise: float) -> np.ndarray:
     """Unit in-plane slip directions of the sliding rows (from the pose when observed,
-    else the in-plane commands), (n, 2)."""
+    else the in-plane commands), (n, 2), of one observation file or several."""
+    if not isinstance(obs, Observations):
+        return np.vstack([np.zeros((0, 2))] + [push_directions(o, pose_noise) for o in obs])
     rows = sliding_rows(obs, pose_noise)
     if len(rows):
         return slip_directions(obs, rows)
@@ -65,12 +71,28 @@ def _cause(name: str, values: dict, directions: np.ndarray) -> str:
     return "the observations barely depend on it; more pushes in other directions would help"
 
 
-def identifiability(names, theta, sigma, obs: Observations, pose_noise: float):
-    """``(flags, reasons)``: a flag per parameter and, for each unidentifiable one, why."""
+def anisotropy(names, theta, cov) -> tuple[float, float] | None:
+    """``(mu_x - mu_y, its standard deviation)`` from the covariance, or None."""
+    if cov is None or not {"mu_x", "mu_y"} <= set(names):
+        return None
+    i, j = names.index("mu_x"), names.index("mu_y")
+    var = cov[i, i] + cov[j, j] - 2.0 * cov[i, j]
+    return float(theta[i] - theta[j]), math.sqrt(max(var, 0.0))
+
+
+def identifiability(names, theta, sigma, obs, pose_noise: float, cov=None):
+    """``(flags, reasons)``: a flag per parameter and, for each unidentifiable one, why
+    (``cov`` the covariance, for the anisotropy test of the angle)."""
     values = dict(zip(names, (float(t) for t in theta)))
     directions = push_directions(obs, pose_noise)
     flags, reasons = [], {}
+    aniso = anisotropy(tuple(names), theta, cov)
     for k, v, s in zip(names, theta, sigma):
+        if k == "angle_deg" and aniso is not None and not abs(aniso[0]) > ANISOTROPY_SIGMAS * aniso[1]:
+            flags.append(False)
+            reasons[k] = (f"mu_x - mu_y = {aniso[0]:.3g} +- {aniso[1]:.2g} is within {ANISOTROPY_SIGMAS:g} sigma of 0: "
+                          "the data do not tell the two coefficients apart, so the ellipse has no axis to orient")
+            continue
         if k == "angle_deg":
             ok = math.isfinite(s) and s < ANGLE_SIGMA_LIMIT_DEG
             size = f"{s:.3g} deg (limit {ANGLE_SIGMA_LIMIT_DEG:g} deg)"
