@@ -78,9 +78,11 @@ def calibrated_spring(obs: Observations):
     lag = upper - np.stack([obs.values["lower_x"], obs.values["lower_y"]], axis=1)
     g = -np.stack([obs.values["force_x"], obs.values["force_y"]], axis=1)
     gg = float((g * g).sum())
-    if gg <= 0:
-        return None
-    return float((lag * g).sum()) / gg, float(obs.values["force_z"][-1])
+    normal = float(np.max(obs.values["force_z"]))  # the pressed rows' (a last row after a release has none)
+    compliance = float((lag * g).sum()) / gg if gg > 0 else 0.0
+    if compliance <= 0 or normal <= 0:
+        return None  # not a spring: the steady-sliding information stands in
+    return compliance, normal
 
 
 def sequence_information(theta, directions, distance: float, spring, noise: NoiseModel) -> np.ndarray:
@@ -164,7 +166,7 @@ def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fi
     if spring is not None:
         directions = greedy_directions(theta, n, lambda ds: sequence_information(theta, ds, distance, spring, noise))
     else:
-        normal = float(obs.values["force_z"][-1]) if "force_z" in obs.values else 1.0
+        normal = max(float(np.max(obs.values["force_z"])), 1e-300) if "force_z" in obs.values else 1.0
         directions = greedy_directions(theta, n, lambda ds: steady_information(theta, ds, normal, noise))
     commands = press + tuple(Command(distance * math.cos(math.radians(d)), distance * math.sin(math.radians(d)), 0.0,
                                      0.0) for d in directions)

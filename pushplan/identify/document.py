@@ -100,3 +100,18 @@ def identified_scenario(result: Identification, scenario: Scenario) -> dict:
     d["description"] = (f"{scenario.description} [identified: "
                         + ", ".join(f"{k} = {v:.6g}" for k, v in zip(result.names, result.estimate)) + "]").strip()
     return d
+
+
+def covariance_from_document(doc: dict) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """``(names, estimate (p,), covariance (p, p))`` of an ``identified.json`` content,
+    ``C = corr * sigma sigma^T`` (an undetermined parameter gets ``inf`` variance, no covariance)."""
+    p = doc["parameters"]
+    names = tuple(p)
+    estimate = np.array([p[k]["estimate"] for k in names], float)
+    sd = np.array([math.inf if p[k]["sigma"] is None else p[k]["sigma"] for k in names], float)
+    corr = np.array([[np.nan if v is None else v for v in row] for row in doc["correlation"]], float)
+    finite = np.isfinite(sd)
+    C = np.where(np.outer(finite, finite), np.nan_to_num(corr) * np.outer(np.where(finite, sd, 0.0),
+                                                                            np.where(finite, sd, 0.0)), 0.0)
+    C[~finite, ~finite] = np.inf
+    return names, estimate, C
