@@ -216,3 +216,18 @@ def test_closed_loop_reaches_a_rest_target_scored_on_the_truths_release(tmp_path
     loaded = doc["iterations"][-1]["observed_pose"]
     rest = doc["closed_loop"]["final_pose"]
     assert math.hypot(rest[0] - loaded[0], rest[1] - loaded[1]) > 100 * closed["position"]
+
+
+def test_an_input_error_inside_the_loop_is_a_bug_not_bad_input(tmp_path, monkeypatch):
+    from pushplan.identify import closed_loop as loop
+    from pushplan.errors import InputError
+
+    def broken(*args, **kwargs):
+        raise InputError("compliance must be > 0, got -1")
+
+    monkeypatch.setattr(loop, "replan", broken)
+    model = write(tmp_path, "model.toml", 0.3, 0.15)
+    truth = write(tmp_path, "truth.toml", 0.39, 0.195, plan=False)
+    with pytest.raises(loop.LoopError, match="closed loop step 2: compliance must be > 0"):
+        main(["closed-loop", str(model), "--truth", str(truth), "--out", str(tmp_path / "cl"), "--quiet",
+              "--no-recording"])

@@ -298,3 +298,34 @@ def test_isotropic_truth_has_no_identifiable_angle(tmp_path, seed):
     assert not p["angle_deg"]["identifiable"] and "tell the two coefficients apart" in p["angle_deg"]["reason"]
     for k in ("mu_x", "mu_y"):
         assert abs(p[k]["estimate"] - 0.4) <= 0.01 * 0.4, p[k]
+
+
+def test_intervals_cover_a_truth_on_a_mesh_twice_as_fine():
+    # a small version of benchmarks/identify.py --coverage: the noise-only (linearised) sigma
+    # misses the mesh's bias by several sigma; the reported interval, with the model error, holds it
+    import dataclasses
+    import math
+    import tomllib
+
+    from fe_contact import Command
+    from pushplan.config import parse_scenario
+    from pushplan.identify import NoiseModel, identify
+    from pushplan.run import drive
+    from pushplan.run.observations import observations_from_steps
+
+    truth = parse_scenario(tomllib.loads(SCENARIO.format(name="t", pushes="", **TRUTH).replace("[4, 4, 2]",
+                                                                                                 "[8, 8, 4]")))
+    cmds = [Command(0.0, 0.0, -1e-4)] + [Command(1e-4 * math.cos(math.radians(d)), 1e-4 * math.sin(math.radians(d)),
+                                                 0.0) for d in (10, 10, 100, 100, 200)]
+    clean = observations_from_steps(drive(truth.model(), cmds).summary.steps)
+    guess = dataclasses.replace(truth, elements=(4, 4, 2), mu_x=0.25, mu_y=0.25, angle_deg=0.0)
+    missed_linearised = 0
+    for seed in (11, 12):
+        res = identify(guess, noisy(clean, seed), NoiseModel(1e-6, 1.0, 0.01))
+        for j, k in enumerate(res.names):
+            lo, hi = res.interval[j]
+            assert lo <= TRUTH[k] <= hi, (k, res.estimate[j], res.sigma[j])
+            assert res.sigma[j] >= res.sigma_linear[j]
+            missed_linearised += abs(res.estimate[j] - TRUTH[k]) > 1.96 * res.sigma_linear[j]
+        assert res.converged and res.uncertainty.discretisation_chi2 > 0
+    assert missed_linearised >= 2  # the model error is what makes these intervals honest
