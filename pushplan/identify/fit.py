@@ -14,7 +14,8 @@ deviations and its scaled form the correlation.
 A parameter is *identifiable* when its standard deviation is finite and below
 :data:`REL_SIGMA_LIMIT` of its value (``mu``, ``young``) or :data:`ANGLE_SIGMA_LIMIT_DEG`;
 :mod:`.reasons` says why not.  The fit starts from the reduced-model estimate of
-:mod:`.prefit` when the observations allow it, else from the scenario's values.
+:mod:`.prefit` when the observations allow it and the FE fits it better than the
+scenario's values (partial slip can mislead the reduced model), else from the scenario's.
 Parameters not identifiable at the start are kept fixed at the scenario's value (a
 fit would only chase the noise along them) and the others fitted; if one becomes identifiable at the estimate,
 all are fitted again from there.
@@ -245,8 +246,11 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
             for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess):
                 start[names.index(k)] = v
             used = True
-    chi2_initial = float(np.sum(_residual(predict, y, sigma, initial) ** 2))
+    r_initial = _residual(predict, y, sigma, initial)
+    chi2_initial = float(r_initial @ r_initial)
     r0 = _residual(predict, y, sigma, start)
+    if used and r0 @ r0 > chi2_initial:  # the reduced model misled (partial slip): start where the FE fits better
+        start, r0, used = initial.copy(), r_initial, False
     J0 = _jacobian(predict, y, sigma, names, start, r0)
     free = np.array(_flags(names, start, J0, obs, noise))
     if not free.any():
