@@ -59,7 +59,7 @@ def cmd_identify(args) -> int:
         raise InputError(f"--suggest must be >= 1, got {args.suggest}")
     out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    result = identify(scenario, obs, noise, fit, log=log)
+    result = identify(scenario, obs, noise, fit, log=log, model_error=not args.no_model_error)
     sources = ", ".join(args.observations)
     doc = identified_document(result, scenario, obs, noise, sources)
     if args.suggest:
@@ -99,6 +99,9 @@ def register(subparsers) -> None:
                    help="force noise as a fraction of each observed value (default 0.01)")
     p.add_argument("--force-resolution", type=float, default=1e-3,
                    help="force sensor resolution, N: the smallest force sigma (default 1e-3)")
+    p.add_argument("--no-model-error", action="store_true",
+                   help="skip the refined-mesh rollout and the chi-square profile checks of the intervals (faster; "
+                        "the intervals then hold the noise and the reduced chi-square only)")
     p.add_argument("--suggest", type=int, metavar="N", help="propose N push directions that identify the friction")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_identify)

@@ -292,10 +292,13 @@ def _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, check, predi
     s2 = chi2_factor(chi2, dof)
     shift, mesh_chi2, count = np.zeros(len(names)), None, predict.count
     ratios, sd_profile = np.full((len(names), 2), np.nan), np.sqrt(np.maximum(np.diag(cov0), 0.0))
-    fine = None
+    fine, notes = None, []
     if model_error:
         fine = FePredictor(scenario, obs, names, elements=tuple(REFINEMENT * e for e in scenario.elements))
-        shift, mesh_chi2 = discretisation_shift(J, sigma, r * sigma + y, fine(theta), cov0)
+        try:
+            shift, mesh_chi2 = discretisation_shift(J, sigma, r * sigma + y, fine(theta), cov0)
+        except IdentificationError as e:
+            notes.append(f"no discretisation term: the refined-mesh rollout failed ({e})")
 
         def chi2_at(t):
             try:
@@ -308,7 +311,7 @@ def _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, check, predi
     warning = chi2_warning(chi2, dof, s2, mesh_chi2)
     return Uncertainty(sigma=np.sqrt(np.maximum(np.diag(C), 0.0)), interval=interval, method=method, covariance=C,
                        chi2_factor=s2, discretisation=shift, discretisation_chi2=mesh_chi2, profile_ratio=ratios,
-                       warnings=(warning,) if warning else (),
+                       warnings=tuple(notes) + ((warning,) if warning else ()),
                        fe_rollouts=predict.count - count + (fine.count if fine else 0))
 
 
