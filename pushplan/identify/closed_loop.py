@@ -1,8 +1,16 @@
 """The closed loop: execute one planned push on the real block (here a *truth* FE
 model: the same block on a surface with other friction), observe its pose and force,
-re-identify the friction if asked, re-plan the remaining pushes from the observed
-state (:mod:`pushplan.planning.replan`), repeat.  The open-loop baseline executes the
-first plan unchanged on the same truth.
+re-identify the friction (and Young's modulus) if asked, re-plan the remaining pushes
+from the observed state (:mod:`pushplan.planning.replan`), repeat.  The open-loop
+baseline executes the first plan unchanged on the same truth.
+
+Each re-plan aims at ``target - b``, with ``b`` (m, m, rad) the truth's pose after the
+last push less the pose the plan behind it expected: the error of the model on the
+truth is taken to persist from one push to the next (modifier adaptation, here on the
+measured block), within a quarter of the tolerances (:data:`REPLAN_TOLERANCE`).  A
+rest target is scored on the truth's own release.  The re-identification in the loop
+skips the refined-mesh and profile checks of :mod:`.uncertainty` (only its estimates
+are used; the chi-square rule stays).
 
 Observations are the truth run's exact poses and forces (no noise is added); the
 identification weights them with the stated noise model.
@@ -30,7 +38,6 @@ from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
 from .fit import identify
 from .noise import NoiseModel
-
 
 LOOP_FIT = ("mu_x", "mu_y", "angle_deg", "young")
 """Parameters re-identified in the loop: the stiffness too, since a real block's (and a finer
