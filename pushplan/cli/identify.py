@@ -19,10 +19,12 @@ from ..errors import EXIT_SOLVER_FAILURE
 
 
 def _print(result, doc) -> None:
-    print(f"{'parameter':>10} {'initial':>10} {'estimate':>12} {'sigma':>10}  identifiable")
+    print(f"{'parameter':>10} {'initial':>10} {'estimate':>12} {'sigma':>10} {'95 % interval':>23}  identifiable")
     for k, p in doc["parameters"].items():
         sigma = "inf" if p["sigma"] is None else f"{p['sigma']:.4g}"
-        print(f"{k:>10} {p['initial']:>10.5g} {p['estimate']:>12.6g} {sigma:>10}  "
+        lo, hi = p["interval_95"]
+        interval = "unbounded" if lo is None or hi is None else f"[{lo:.5g}, {hi:.5g}]"
+        print(f"{k:>10} {p['initial']:>10.5g} {p['estimate']:>12.6g} {sigma:>10} {interval:>23}  "
               + ("yes" if p["identifiable"] else f"no: {p['reason']}"))
     s = doc["solver"]
     print(f"  chi2 {doc['residual']['chi2']:.4g} for {doc['residual']['values']} values; "

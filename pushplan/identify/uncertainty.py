@@ -33,7 +33,8 @@ covariance is
   standard deviation becomes ``max(t_-, t_+) / 2 sqrt(C0_jj)`` (a profile-likelihood
   interval along the linearised path), its correlations kept.
 
-The 95 % interval is ``theta_hat +- 1.96 sqrt(C_jj)``.
+The 95 % interval is ``theta_hat +- 1.96 sqrt(C_jj)``, its lower end at least 0 for the
+coefficients and Young's modulus.
 """
 
 from __future__ import annotations
@@ -151,6 +152,8 @@ def combine(names, theta, C0, s2, shift, sd_profile, ratios) -> tuple[np.ndarray
     C = s2 * (C0 * np.outer(scale, scale)) + np.outer(shift, shift)
     sd = np.sqrt(np.maximum(np.diag(C), 0.0))
     interval = np.column_stack([theta - Z95 * sd, theta + Z95 * sd])
+    positive = np.array([k != "angle_deg" for k in names])  # friction coefficients and moduli are > 0
+    interval[positive, 0] = np.maximum(interval[positive, 0], 0.0)
     method = tuple("profile" if np.isfinite(r).all() and min(r) < FLAT_RATIO else "linearised" for r in ratios)
     return C, interval, method
 
