@@ -5,6 +5,8 @@
 ``prefit``    the steady-sliding (reduced-model) estimate that starts the FE fit
 ``fit``       weighted Levenberg-Marquardt on FE predictions, Gauss-Newton covariance,
               identifiability
+``uncertainty`` the reported covariance: chi-square rule, discretisation term, profile check
+``propagate`` the covariance of a predicted pose from the parameters' covariance
 ``design``    experiment design: push directions that make the parameters identifiable
 ``document``  ``identified.json`` and ``identified.toml``
 
