@@ -329,3 +329,15 @@ def test_intervals_cover_a_truth_on_a_mesh_twice_as_fine():
             missed_linearised += abs(res.estimate[j] - TRUTH[k]) > 1.96 * res.sigma_linear[j]
         assert res.converged and res.uncertainty.discretisation_chi2 > 0
     assert missed_linearised >= 2  # the model error is what makes these intervals honest
+
+
+def test_a_bad_second_observation_file_exits_2_naming_it(tmp_path, capsys):
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    good.write_text("dx,dy,dz,dtheta_deg,lower_x\n0,0,-1e-4,0,0\n1e-4,0,0,0,1e-5\n")
+    bad.write_text(BAD["nan"])
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    code = main(["identify", str(guess), "--observations", str(good), str(bad), "--out", str(tmp_path / "id"),
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT and err.count("\n") == 1 and str(bad) in err and str(good) not in err
+    assert not (tmp_path / "id").exists()
