@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 
@@ -27,7 +28,9 @@ __all__ = ["EXIT_BAD_INPUT", "EXIT_SOLVER_FAILURE", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from .args import OneLineParser
+
+    parser = OneLineParser(
         prog="pushplan",
         description="Pushing deformable blocks over anisotropic-friction surfaces "
         "(FE model of Feng, Hjiaj, de Saxce, Mroz 2006).",
@@ -60,20 +63,39 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv=None) -> int:
     """Run a command; warnings raised on the way are shown after it, except before a
-    clean one-line outcome (exit 2, 3, 1 for a full disk, 130), which they would bury."""
-    args = build_parser().parse_args(argv)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", InputWarning)
-        status = None
-        try:
+    clean one-line outcome (exit 2, 3, 1 for a full disk, 130), which they would bury.
+
+    The held-back warnings are shown after ``catch_warnings`` has been left: shown
+    inside it, each would be recorded again and the loop over them would never end."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error (one line, exit 2)
+        return exc.code
+    status = None
+    caught: list = []
+    if getattr(args, "no_memory_check", False):  # for every model of the run, workers included
+        from ..config.budget import OVERRIDE_ENV
+
+        os.environ[OVERRIDE_ENV] = "1"
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", InputWarning)
             status = _run(args)
-        finally:
-            for w in caught:
-                if issubclass(w.category, InputWarning):
-                    _show_warning(w.message, w.category, w.filename, w.lineno)
-                elif status in (None, 0):
-                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    finally:
+        _show_held(caught, status)
+        if getattr(args, "no_memory_check", False):
+            os.environ.pop(OVERRIDE_ENV, None)
     return status
+
+
+def _show_held(caught: list, status) -> None:
+    """Show each held-back warning once: input warnings always, others after a success
+    (or a bug's traceback)."""
+    for w in caught:
+        if issubclass(w.category, InputWarning):
+            _show_warning(w.message, w.category, w.filename, w.lineno)
+        elif status in (None, 0):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
 def _run(args) -> int:

@@ -18,6 +18,9 @@ import sys
 
 from ..errors import EXIT_SOLVER_FAILURE
 
+CLOSED_LOOP_FILES = ("closed_loop.json", "recording.rrd")
+"""What ``closed-loop`` writes in ``--out`` (one transaction: no old recording beside a new JSON)."""
+
 
 def _recording(path, scenario, truth_runs, spec) -> None:
     import numpy as np
@@ -44,20 +47,22 @@ def cmd_closed_loop(args) -> int:
     from ..config.plan import parse_plan
     from ..identify import NoiseModel
     from ..identify.closed_loop import closed_loop
-    from ..outputs import atomic_write_json, prepare_output_dir
+    from ..outputs import atomic_write_json
+    from ..outputs.transaction import output_transaction
 
     scenario = load_scenario(args.scenario)
     spec = parse_plan(scenario)
     truth = load_scenario(args.truth)
     truth.model()
     noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, force_resolution=args.force_resolution)
-    out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    doc = closed_loop(scenario, truth, spec, args.identify, noise, log)
-    truth_runs = doc.pop("_truth")
-    atomic_write_json(out / "closed_loop.json", doc)
-    if not args.no_recording:
-        _recording(out / "recording.rrd", scenario, truth_runs, spec)
+    with output_transaction(args.out, CLOSED_LOOP_FILES) as tx:
+        doc = closed_loop(scenario, truth, spec, args.identify, noise, log)
+        truth_runs = doc.pop("_truth")
+        atomic_write_json(tx.path / "closed_loop.json", doc)
+        if not args.no_recording:
+            _recording(tx.path / "recording.rrd", scenario, truth_runs, spec)
+    out = tx.out
     c, o = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
     print(f"{scenario.name} on {truth.name}: closed loop {c['position'] * 1e6:.3f} um "
           f"({'within' if c['within_tolerance'] else 'outside'} tolerance {spec.tolerance * 1e6:.3g} um), "
@@ -70,15 +75,14 @@ def cmd_closed_loop(args) -> int:
 
 
 def register(subparsers) -> None:
+    from .identify import add_noise_flags
+
     p = subparsers.add_parser("closed-loop", help="execute a plan push by push on a truth model, re-planning")
     p.add_argument("scenario", help="planning scenario TOML (the model; [plan] table)")
     p.add_argument("--truth", required=True, help="scenario TOML of the truth (same block, other friction)")
     p.add_argument("--out", required=True, help="output folder (closed_loop.json, recording.rrd)")
     p.add_argument("--identify", action="store_true", help="re-identify the friction after every push")
-    p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise of the identification, m")
-    p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N")
-    p.add_argument("--force-noise-rel", type=float, default=0.01, help="relative force noise")
-    p.add_argument("--force-resolution", type=float, default=1e-3, help="force sensor resolution, N (smallest sigma)")
+    add_noise_flags(p, yaw=False)
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_closed_loop)

@@ -19,7 +19,12 @@ def _check(args, scenario) -> None:
         raise InputError(f"--levels must be >= 3 (three meshes give an order), got {args.levels}")
     if not (math.isfinite(args.ratio) and args.ratio > 1.0):
         raise InputError(f"--ratio must be > 1, got {args.ratio}")
-    finest = level_elements(scenario.elements, args.ratio, args.levels - 1)
+    meshes = [level_elements(scenario.elements, args.ratio, k) for k in range(args.levels)]
+    for coarse, fine in zip(meshes, meshes[1:]):
+        if math.prod(fine) <= math.prod(coarse):
+            raise InputError(f"--levels {args.levels} --ratio {args.ratio}: the meshes {list(coarse)} and "
+                             f"{list(fine)} are not refinements of each other (a larger --ratio or coarsest mesh)")
+    finest = meshes[-1]
     if math.prod(finest) > MAX_ELEMENTS:
         raise InputError(f"--levels {args.levels} --ratio {args.ratio}: the finest mesh {list(finest)} has more "
                          f"than {MAX_ELEMENTS} elements")
@@ -70,15 +75,20 @@ def cmd_convergence(args) -> int:
 
 
 def register(subparsers) -> None:
+    from ..limits import MAX_ELEMENTS_PER_AXIS, MAX_LEVELS, MAX_RATIO, MAX_WORKERS
+    from .args import count, real
+
     p = subparsers.add_parser("convergence", help="mesh-convergence study: observed order, Richardson "
                               "extrapolation and GCI of the scenario's results")
     p.add_argument("scenario", help="scenario TOML file; its [block] elements are the coarsest mesh")
-    p.add_argument("--levels", type=int, required=True, help="number of meshes (>= 3)")
-    p.add_argument("--ratio", type=float, default=2.0, help="refinement ratio between levels (default 2)")
+    p.add_argument("--levels", type=count(3, MAX_LEVELS), required=True,
+                   help=f"number of meshes (3 to {MAX_LEVELS})")
+    p.add_argument("--ratio", type=real(1.0, MAX_RATIO), default=2.0,
+                   help=f"refinement ratio between levels (default 2, at most {MAX_RATIO})")
     p.add_argument("--out", required=True, help="output folder (convergence.json, convergence.png)")
-    p.add_argument("--elements", nargs=3, type=int, metavar=("NX", "NY", "NZ"),
+    p.add_argument("--elements", nargs=3, type=count(1, MAX_ELEMENTS_PER_AXIS), metavar=("NX", "NY", "NZ"),
                    help="coarsest mesh (default: the scenario's [block] elements)")
-    p.add_argument("--workers", type=int, help="run the levels in parallel on a local pool of this size "
+    p.add_argument("--workers", type=count(1, MAX_WORKERS), help="run the levels in parallel on a local pool of this size "
                    "(the sweep machinery; levels land in OUT/levels/)")
     p.add_argument("--executor", choices=("process", "dask"), help="sweep executor for the levels")
     p.add_argument("--scheduler", help="address of a running Dask scheduler for the levels")

@@ -17,6 +17,9 @@ import sys
 
 from ..errors import EXIT_SOLVER_FAILURE
 
+IDENTIFY_FILES = ("identified.json", "identified.toml", "suggested_commands.json")
+"""What ``identify`` writes in ``--out`` (one transaction)."""
+
 
 def _print(result, doc) -> None:
     print(f"{'parameter':>10} {'initial':>10} {'estimate':>12} {'sigma':>10} {'95 % interval':>23}  identifiable")
@@ -45,7 +48,8 @@ def cmd_identify(args) -> int:
     from ..config.observations import read_observations
     from ..identify import NoiseModel, identify
     from ..identify.document import identified_document, identified_scenario
-    from ..outputs import atomic_write_bytes, atomic_write_json, prepare_output_dir
+    from ..outputs import atomic_write_bytes, atomic_write_json
+    from ..outputs.transaction import output_transaction
     from ..outputs.toml import toml_text
 
     scenario = load_scenario(args.scenario)
@@ -55,24 +59,21 @@ def cmd_identify(args) -> int:
     noise.sigma(obs, scenario.size)  # noise checks before anything is written
     scenario.model()
     fit = ("mu_x", "mu_y", "angle_deg") + (("young",) if args.fit == "young" else ())
-    if args.suggest is not None and args.suggest < 1:
-        from ..errors import InputError
-
-        raise InputError(f"--suggest must be >= 1, got {args.suggest}")
-    out = prepare_output_dir(args.out)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    result = identify(scenario, obs, noise, fit, log=log, model_error=not args.no_model_error)
-    sources = ", ".join(args.observations)
-    doc = identified_document(result, scenario, obs, noise, sources)
-    if args.suggest:
-        from ..identify.design import suggest
+    with output_transaction(args.out, IDENTIFY_FILES) as tx:
+        result = identify(scenario, obs, noise, fit, log=log, model_error=not args.no_model_error)
+        sources = ", ".join(args.observations)
+        doc = identified_document(result, scenario, obs, noise, sources)
+        if args.suggest:
+            from ..identify.design import suggest
 
-        doc["suggested"] = suggest(result.scenario(scenario), obs[0], noise, args.suggest, fit).to_dict()
-        atomic_write_json(out / "suggested_commands.json", _commands_file(doc["suggested"]))
-    atomic_write_json(out / "identified.json", doc)
-    atomic_write_bytes(out / "identified.toml", toml_text(
-        identified_scenario(result, scenario), f"{scenario.name} with the friction identified by pushplan identify "
-        f"from {sources}").encode())
+            doc["suggested"] = suggest(result.scenario(scenario), obs[0], noise, args.suggest, fit).to_dict()
+            atomic_write_json(tx.path / "suggested_commands.json", _commands_file(doc["suggested"]))
+        atomic_write_json(tx.path / "identified.json", doc)
+        atomic_write_bytes(tx.path / "identified.toml", toml_text(
+            identified_scenario(result, scenario), f"{scenario.name} with the friction identified by pushplan "
+            f"identify from {sources}").encode())
+    out = tx.out
     _print(result, doc)
     for w in doc["uncertainty"]["warnings"]:
         print(f"pushplan: warning: {w}", file=sys.stderr)
@@ -86,24 +87,40 @@ def cmd_identify(args) -> int:
     return 0
 
 
+def add_noise_flags(p, yaw: bool = True) -> None:
+    """``--pose-noise``, ``--force-noise``, ``--force-noise-rel``, ``--force-resolution``
+    (and ``--yaw-noise-deg``), each a finite number in its stated range (:mod:`pushplan.limits`)."""
+    from ..limits import MAX_FORCE_NOISE, MAX_FORCE_NOISE_REL, MAX_POSE_NOISE, MIN_POSE_NOISE, MIN_YAW_NOISE_DEG
+    from .args import real
+
+    p.add_argument("--pose-noise", type=real(MIN_POSE_NOISE, MAX_POSE_NOISE, closed_lo=True), default=1e-6,
+                   help=f"pose noise, m ({MIN_POSE_NOISE} to {MAX_POSE_NOISE}; default 1e-6)")
+    if yaw:
+        p.add_argument("--yaw-noise-deg", type=real(MIN_YAW_NOISE_DEG, 180.0, closed_lo=True), default=None,
+                       help="yaw noise, deg (default: the pose noise at half the face width)")
+    p.add_argument("--force-noise", type=real(0.0, MAX_FORCE_NOISE, closed_lo=True), default=1.0,
+                   help="absolute force noise, N (default 1)")
+    p.add_argument("--force-noise-rel", type=real(0.0, MAX_FORCE_NOISE_REL, closed_lo=True), default=0.01,
+                   help="force noise as a fraction of each observed value (default 0.01)")
+    p.add_argument("--force-resolution", type=real(0.0, MAX_FORCE_NOISE), default=1e-3,
+                   help="force sensor resolution, N: the smallest force sigma (default 1e-3)")
+
+
 def register(subparsers) -> None:
+    from ..limits import MAX_SUGGEST
+    from .args import count
+
     p = subparsers.add_parser("identify", help="estimate the friction (mu_x, mu_y, angle) from observed pushes")
     p.add_argument("scenario", help="scenario TOML: block, mesh, material and the initial friction")
     p.add_argument("--observations", required=True, nargs="+", metavar="FILE",
                    help="observation files (.csv or .json), each from its own press")
     p.add_argument("--out", required=True, help="output folder (identified.json, identified.toml)")
     p.add_argument("--fit", choices=["young"], help="also estimate Young's modulus")
-    p.add_argument("--pose-noise", type=float, default=1e-6, help="pose noise, m (default 1e-6)")
-    p.add_argument("--yaw-noise-deg", type=float, default=None,
-                   help="yaw noise, deg (default: the pose noise at half the face width)")
-    p.add_argument("--force-noise", type=float, default=1.0, help="absolute force noise, N (default 1)")
-    p.add_argument("--force-noise-rel", type=float, default=0.01,
-                   help="force noise as a fraction of each observed value (default 0.01)")
-    p.add_argument("--force-resolution", type=float, default=1e-3,
-                   help="force sensor resolution, N: the smallest force sigma (default 1e-3)")
+    add_noise_flags(p)
     p.add_argument("--no-model-error", action="store_true",
                    help="skip the refined-mesh rollout and the chi-square profile checks of the intervals (faster; "
                         "the intervals then hold the noise and the reduced chi-square only)")
-    p.add_argument("--suggest", type=int, metavar="N", help="propose N push directions that identify the friction")
+    p.add_argument("--suggest", type=count(1, MAX_SUGGEST), metavar="N",
+                   help=f"propose N push directions that identify the friction (at most {MAX_SUGGEST})")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_identify)

@@ -36,7 +36,7 @@ def _commands(args, scene) -> tuple:
 
 def _fe_model(args, scene):
     return scene.scenario.model(elements=tuple(args.elements) if args.elements else None,
-                                quadrature=args.quadrature)
+                                quadrature=args.quadrature, what="--elements" if args.elements else None)
 
 
 def cmd_import(args) -> int:
@@ -148,25 +148,35 @@ def _export_path(args):
 
 def cmd_export(args) -> int:
     from ..mujoco.trajectory import export_plan
+    from ..outputs.transaction import output_file_lock
 
     out = _export_path(args)
+    lock = output_file_lock(out, "--out")
     scene, settings = _scene(args)
     commands = _commands(args, scene)
-    path = export_plan(out, scene, commands, settings.gripper, settings.control_period, _fe_model(args, scene))
+    fe_model = _fe_model(args, scene)
+    with lock:
+        path = export_plan(out, scene, commands, settings.gripper, settings.control_period, fe_model)
     print(f"wrote {path} ({len(commands) + 1} knots of gripper and FE block pose, {settings.control_period} s apart)")
     return 0
 
 
 def _common(q, commands=True, fe=True) -> None:
+    from ..limits import MAX_CONTROL_PERIOD, MAX_ELEMENTS_PER_AXIS
+    from .args import count, real
+
+    q.add_argument("--quiet", action="store_true", help="print nothing but warnings, errors and the result lines")
     q.add_argument("scene", help="scenario TOML with a [mujoco] table, or an MJCF .xml")
     q.add_argument("--block", help="block body or box geom (default from [mujoco] or 'block')")
     q.add_argument("--floor", help="floor plane geom (default from [mujoco] or 'floor')")
     if commands:
         q.add_argument("--gripper", help="gripper mocap body (default from [mujoco] or 'gripper')")
         q.add_argument("--commands", help="plan.json whose commands replace the scenario's [[load]]")
-        q.add_argument("--control-period", type=float, help="s of MuJoCo time per command")
+        q.add_argument("--control-period", type=real(0.0, MAX_CONTROL_PERIOD),
+                       help=f"s of MuJoCo time per command (at most {MAX_CONTROL_PERIOD})")
     if fe:
-        q.add_argument("--elements", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="FE mesh override")
+        q.add_argument("--elements", type=count(1, MAX_ELEMENTS_PER_AXIS), nargs=3, metavar=("NX", "NY", "NZ"),
+                       help="FE mesh override")
         q.add_argument("--quadrature", type=int, choices=(2, 3), help="Gauss points per direction override")
 
 

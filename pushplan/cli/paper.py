@@ -59,9 +59,12 @@ def cmd_paper(args) -> int:
 
 def register(subparsers) -> None:
     """Add the ``paper`` subcommand."""
+    from ..limits import MAX_ELEMENTS_PER_AXIS
+    from .args import count
+
     p = subparsers.add_parser("paper", help="reproduce the paper's sect. 9 (figures 6-10, report, VTU)")
     p.add_argument("--out", default="out/paper", help="output folder (default: out/paper)")
-    p.add_argument("--elements", nargs=3, type=int, metavar=("NX", "NY", "NZ"),
+    p.add_argument("--elements", nargs=3, type=count(1, MAX_ELEMENTS_PER_AXIS), metavar=("NX", "NY", "NZ"),
                    help="mesh override for coarse runs (default: the paper's 20 20 5)")
     p.add_argument("--quadrature", type=int, choices=(2, 3), help="Gauss points per direction (default: 3)")
     p.add_argument("--local-method", choices=LOCAL_METHODS,

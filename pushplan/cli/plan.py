@@ -83,6 +83,8 @@ def cmd_plan(args) -> int:
         start = measured_start(scenario, spec, read_observations(args.from_observations))
         full_spec, spec = spec, remaining_spec(spec, start)
     check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
+    check_memory(spec.planning_elements, spec.planning_quadrature, override=args.no_memory_check,
+                 what="plan.planning_elements")
     tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
 
     def log(text):
@@ -131,6 +133,9 @@ def cmd_plan(args) -> int:
 
 
 def register(subparsers) -> None:
+    from ..limits import MAX_RATIO
+    from .args import real
+
     """Add the ``plan`` subcommand."""
     p = subparsers.add_parser("plan", help="plan upper-face commands reaching a target pose ([plan] table)")
     p.add_argument("scenario", help="scenario TOML file with a [plan] table")
@@ -142,8 +147,8 @@ def register(subparsers) -> None:
     p.add_argument("--verification-error", action="store_true",
                    help="also run the plan on two coarser meshes and state the GCI of the verification mesh "
                    "(plan.json: verification_error)")
-    p.add_argument("--verification-ratio", type=float, default=1.5,
-                   help="coarsening ratio of those meshes (default 1.5)")
+    p.add_argument("--verification-ratio", type=real(1.0, MAX_RATIO), default=1.5,
+                   help=f"coarsening ratio of those meshes (> 1, at most {MAX_RATIO}; default 1.5)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_memory_flag(p)
     p.set_defaults(func=cmd_plan)

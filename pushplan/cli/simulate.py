@@ -55,13 +55,13 @@ def exit_status(run) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from contextlib import nullcontext
+    from contextlib import ExitStack
 
     from ..config import load_scenario
     from ..config.budget import check_memory
     from ..config.commands import read_command_file
     from ..config.fingerprint import check_plan_scenario
-    from ..outputs.transaction import output_transaction
+    from ..outputs.transaction import output_file_lock, output_transaction
     from ..run import simulate
 
     scenario = load_scenario(args.scenario)
@@ -79,12 +79,18 @@ def cmd_simulate(args) -> int:
         from ..run.observations import ObservationsFile
 
         observation_format(args.observations)
-        observers.append(ObservationsFile(args.observations))
+        obs_lock = output_file_lock(args.observations, "--observations")
+        observers.append(ObservationsFile(obs_lock.out))
     out = output_transaction(args.out, RUN_FILES)
-    fclib = output_transaction(args.export_fclib, FCLIB_FILES) if args.export_fclib else nullcontext()
-    with out, fclib:
+    fclib = output_transaction(args.export_fclib, FCLIB_FILES, what="--export-fclib") if args.export_fclib else None
+    with ExitStack() as stack:
+        if args.observations:
+            stack.enter_context(obs_lock)
+        stack.enter_context(out)
+        if fclib is not None:
+            stack.enter_context(fclib)
         run = simulate(scenario, out.path, commands=commands, model=model, progress=not args.quiet,
-                       recording=not args.no_recording, export_fclib=fclib.path if args.export_fclib else None,
+                       recording=not args.no_recording, export_fclib=fclib.path if fclib else None,
                        observers=observers)
     if not args.quiet:
         print_steps(run.summary.steps)

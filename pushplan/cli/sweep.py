@@ -62,12 +62,16 @@ def cmd_sweep(args) -> int:
 
 def register(subparsers) -> None:
     """Add the ``sweep`` subcommand."""
+    from ..limits import MAX_WORKERS
+    from .args import count
+
     p = subparsers.add_parser("sweep", help="run a scenario over parameter grids (local process pool or Dask)")
     p.add_argument("sweep", help="sweep TOML file (see pushplan.config.sweep)")
     p.add_argument("--out", required=True, help="output folder (results.csv, cases/, heat map); reruns resume")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address (implies --executor dask)")
     p.add_argument("--executor", choices=EXECUTORS, help="override the sweep file's executor")
-    p.add_argument("--workers", type=int, help="local pool / LocalCluster size (default: the file's, or CPU count)")
+    p.add_argument("--workers", type=count(1, MAX_WORKERS),
+                   help="local pool / LocalCluster size (default: the file's, or CPU count)")
     p.add_argument("--figure", help="also write the heat map here, e.g. docs/figures/sweep_twist.png")
     p.add_argument("--rerun-failed", action="store_true", help="also rerun cases that ended in a solver failure")
     p.add_argument("--quiet", action="store_true", help="no per-case lines")

@@ -22,10 +22,14 @@ quadrature 2): ``[16, 16, 4]`` 0.26 GB (estimate 0.31 GB), ``[32, 32, 4]`` 0.71 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ..errors import InputError
 
+OVERRIDE_ENV = "PUSHPLAN_NO_MEMORY_CHECK"
+"""Set to ``1`` by ``--no-memory-check`` for the run (and its worker processes): every
+model is built without the check."""
 GB = 1e9
 BASELINE = 0.25 * GB
 """The interpreter and its libraries (numpy, scipy, fe_contact, rerun) before a model."""
@@ -72,7 +76,7 @@ def available_memory() -> float | None:
     return min(known) if known else None
 
 
-def check_memory(elements, quadrature: int = 2, copies: int = 1, override: bool = False,
+def check_memory(elements, quadrature: int = 2, copies: int = 1, override: bool | None = None,
                  what: str = "block.elements") -> float:
     """Refuse a mesh whose estimated memory exceeds the available memory.
 
@@ -82,8 +86,8 @@ def check_memory(elements, quadrature: int = 2, copies: int = 1, override: bool 
     quadrature : int
     copies : int
         Models in memory at once (a sweep's parallel workers).
-    override : bool
-        Only return the estimate (``--no-memory-check``).
+    override : bool or None
+        Only return the estimate (``--no-memory-check``); None: as :data:`OVERRIDE_ENV` says.
     what : str
         The key named in the message.
 
@@ -97,6 +101,8 @@ def check_memory(elements, quadrature: int = 2, copies: int = 1, override: bool 
     InputError
         The estimate exceeds the available memory (names both, and the flag).
     """
+    if override is None:
+        override = os.environ.get(OVERRIDE_ENV) == "1"
     need = copies * estimate_memory(elements, quadrature)
     limit = available_memory()
     if not override and limit is not None and need > limit:

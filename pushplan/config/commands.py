@@ -17,6 +17,7 @@ import numpy as np
 from fe_contact import Command
 
 from ..errors import InputError
+from ..limits import MAX_STEPS
 from .files import read_json
 from .validate import Table
 
@@ -65,6 +66,8 @@ def commands_to_list(commands) -> list[dict]:
 def commands_from_list(items, key: str = "commands") -> tuple[Command, ...]:
     if not isinstance(items, list):
         raise InputError(f"{key} must be a list of commands, got {type(items).__name__}")
+    if len(items) > MAX_STEPS:
+        raise InputError(f"{key} holds {len(items)} commands, more than {MAX_STEPS}")
     return tuple(command_from_dict(item, f"{key}[{i}]") for i, item in enumerate(items))
 
 

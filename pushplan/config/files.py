@@ -85,6 +85,11 @@ def check_nesting(text: str, path, what: str, toml: bool = True) -> None:
             dots = 0
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
 def read_toml(path, what: str = "scenario") -> dict:
     """Parse a TOML file; ``what`` names the file kind in messages."""
     path = Path(path)
@@ -92,8 +97,8 @@ def read_toml(path, what: str = "scenario") -> dict:
     check_nesting(text, path, what, toml=True)
     try:
         return tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, RecursionError) as exc:
-        raise InputError(f"malformed TOML in {path}: {exc}") from None
+    except (ValueError, RecursionError) as exc:  # TOMLDecodeError, an integer of over 4300 digits
+        raise InputError(f"malformed TOML in {path}: {_one_line(exc)}") from None
 
 
 def read_text(path, what: str) -> str:
@@ -116,5 +121,5 @@ def read_json(path, what: str) -> object:
     check_nesting(text, path, what, toml=False)
     try:
         return json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"cannot read {what} file {path}: {exc}") from None
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, an integer of over 4300 digits
+        raise InputError(f"cannot read {what} file {path}: {_one_line(exc)}") from None

@@ -6,9 +6,9 @@ play block, floor and gripper, and the settings of the co-simulation and compari
     block = "block"                # body (holding one box geom) or box geom
     floor = "floor"                # plane geom
     gripper = "gripper"            # body or site carrying the upper face (mocap to follow commands)
-    control_period = 0.05          # s of MuJoCo time per command / FE step
-    settle_time = 0.05             # s held after each command in the rigid and flex comparisons
-    flex_points = [3, 3, 2]        # flexcomp grid points of the isotropic flex comparison (>= 2 each)
+    control_period = 0.05          # s of MuJoCo time per command / FE step (< 10 s)
+    settle_time = 0.05             # s held after each command in the rigid and flex comparisons (< 10 s)
+    flex_points = [3, 3, 2]        # flexcomp grid points of the isotropic flex comparison (2 to 16 each)
     flex_mu = 0.12                 # isotropic flex friction; absent: sqrt(mu_x mu_y)
     force_factor = 1.2             # force-driven rigid box: push force / sliding threshold (> 1)
 
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from ..limits import MAX_CONTROL_PERIOD, MAX_FLEX_POINTS
 from .validate import Table, integer
 
 MUJOCO_KEYS = (
@@ -49,7 +50,7 @@ class BridgeSettings:
 
 def _grid_points(key: str, value) -> int:
     """A :func:`~pushplan.config.validate.triple` check: flexcomp points per direction, >= 2."""
-    return integer(key, value, 2)
+    return integer(key, value, 2, MAX_FLEX_POINTS)
 
 
 def bridge_settings(table: dict, name: str = "mujoco") -> BridgeSettings:
@@ -65,8 +66,8 @@ def bridge_settings(table: dict, name: str = "mujoco") -> BridgeSettings:
     flex_mu = t.data.get("flex_mu")
     return BridgeSettings(
         **{k: t.string(k, getattr(default, k)) for k in ("scene", "block", "floor", "gripper")},
-        control_period=t.number("control_period", default.control_period, positive=True),
-        settle_time=t.number("settle_time", default.settle_time, nonneg=True),
+        control_period=t.number("control_period", default.control_period, positive=True, hi=MAX_CONTROL_PERIOD),
+        settle_time=t.number("settle_time", default.settle_time, nonneg=True, hi=MAX_CONTROL_PERIOD),
         flex_points=t.triple("flex_points", _grid_points, default.flex_points),
         flex_mu=None if flex_mu is None else t.number("flex_mu", nonneg=True),
         force_factor=t.number("force_factor", default.force_factor, lo=1.0),  # above the sliding threshold

@@ -38,8 +38,10 @@ import numpy as np
 from fe_contact import Command
 
 from ..errors import InputError
-from .commands import COMMAND_KEYS, command_to_dict
+from ..limits import MAX_OBSERVATION_ROWS
+from .commands import COMMAND_KEYS, MAX_TURN_DEG, command_to_dict
 from .files import read_json, read_text
+from .validate import short, number
 
 POSE_COLUMNS = ("lower_x", "lower_y", "lower_yaw_deg")
 FORCE_COLUMNS = ("force_x", "force_y", "force_z")
@@ -122,13 +124,13 @@ def _number(where: str, text) -> float:
         try:
             v = float(text)
         except ValueError:
-            raise InputError(f"{where} must be a number, got {text!r}") from None
+            raise InputError(f"{where} must be a number, got {short(text)}") from None
     elif isinstance(text, (int, float)) and not isinstance(text, bool):
-        v = float(text)
+        return number(where, text)  # an integer beyond a float's range named, not an OverflowError
     else:
-        raise InputError(f"{where} must be a number, got {text!r}")
+        raise InputError(f"{where} must be a number, got {short(text)}")
     if not math.isfinite(v):
-        raise InputError(f"{where} must be finite, got {text!r}")
+        raise InputError(f"{where} must be finite, got {short(text)}")
     return v
 
 
@@ -151,6 +153,8 @@ def observations_from_table(names, rows, where: str) -> Observations:
     _check_header(names, where)
     if not rows:
         raise InputError(f"{where}: no rows (at least one executed command is needed)")
+    if len(rows) > MAX_OBSERVATION_ROWS:
+        raise InputError(f"{where}: {len(rows)} rows, more than {MAX_OBSERVATION_ROWS}")
     data = np.empty((len(rows), len(names)))
     for i, row in enumerate(rows):
         if len(row) != len(names):
@@ -158,6 +162,10 @@ def observations_from_table(names, rows, where: str) -> Observations:
         for j, (k, text) in enumerate(zip(names, row)):
             data[i, j] = _number(f"{where}: row {i + 1} column {k}", text)
     col = {k: data[:, j] for j, k in enumerate(names)}
+    turns = np.flatnonzero(np.abs(col["dtheta_deg"]) >= MAX_TURN_DEG)
+    if turns.size:
+        raise InputError(f"{where}: row {turns[0] + 1} column dtheta_deg must be in (-{MAX_TURN_DEG:g}, "
+                         f"{MAX_TURN_DEG:g}) deg (one step's turn), got {col['dtheta_deg'][turns[0]]!r}")
     commands = tuple(Command(float(a), float(b), float(c), math.radians(float(d)))
                      for a, b, c, d in zip(*(col[k] for k in COMMAND_KEYS)))
     return Observations(commands, {k: col[k] for k in OBSERVED_COLUMNS if k in col})
@@ -165,10 +173,19 @@ def observations_from_table(names, rows, where: str) -> Observations:
 
 def parse_csv(text: str, where: str = "observations") -> Observations:
     """Read the CSV form (see the module docstring)."""
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
+    table = []
+    reader = csv.reader(io.StringIO(text, newline=""), skipinitialspace=True)
+    try:  # the whole text through the CSV reader: a quoted field may hold a line break (then it is no number)
+        for row in reader:
+            if not any(cell.strip() for cell in row) or row[0].lstrip().startswith("#"):
+                continue
+            table.append(row)
+            if len(table) > MAX_OBSERVATION_ROWS + 1:
+                raise InputError(f"{where}: more than {MAX_OBSERVATION_ROWS} rows")
+    except csv.Error as exc:  # a field over the reader's limit, a NUL byte
+        raise InputError(f"{where}: malformed CSV at line {reader.line_num}: {exc}") from None
+    if not table:
         raise InputError(f"{where}: empty (expected a header line and one line per command)")
-    table = list(csv.reader(lines, skipinitialspace=True))
     return observations_from_table([h.strip() for h in table[0]], table[1:], where)
 
 
@@ -179,9 +196,11 @@ def parse_json(data, where: str = "observations") -> Observations:
     items = data["observations"]
     if not items:
         raise InputError(f"{where}: no rows (at least one executed command is needed)")
+    if len(items) > MAX_OBSERVATION_ROWS:
+        raise InputError(f"{where}: {len(items)} rows, more than {MAX_OBSERVATION_ROWS}")
     for i, item in enumerate(items):
         if not isinstance(item, dict):
-            raise InputError(f"{where}: row {i + 1} must be an object, got {item!r}")
+            raise InputError(f"{where}: row {i + 1} must be an object, got {short(item)}")
     names = tuple(items[0])
     for i, item in enumerate(items):
         if tuple(item) != names and set(item) != set(names):

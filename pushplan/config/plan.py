@@ -40,6 +40,7 @@ from fe_contact import Command
 from fe_contact.stepping.pose import wrap_angle
 
 from ..errors import InputError
+from ..limits import MAX_ELEMENTS, MAX_PLAN_STEPS, MAX_ROLLOUTS
 from .commands import degrees_exact
 from .scenario import Scenario
 from .validate import Table, count
@@ -180,6 +181,15 @@ def press_commands(scenario: Scenario) -> tuple[Command, ...]:
     return cmds
 
 
+def _planning_elements(t: Table) -> tuple:
+    """``[plan] planning_elements``: a mesh of at most :data:`~pushplan.limits.MAX_ELEMENTS`
+    elements (its memory is checked by the command, :func:`~pushplan.config.budget.check_memory`)."""
+    elements = t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS))
+    if math.prod(elements) > MAX_ELEMENTS:
+        raise InputError(f"plan.planning_elements must give at most {MAX_ELEMENTS} elements, got {list(elements)}")
+    return elements
+
+
 def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     """Validate the scenario's ``[plan]`` table and its press.
 
@@ -206,7 +216,7 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     x, y = t.number("x"), t.number("y")
     yaw_targeted = "yaw_deg" in t
     yaw = math.radians(t.number("yaw_deg", lo=-180.0, hi=180.0)) if yaw_targeted else 0.0
-    steps = t.integer("steps", minimum=1)
+    steps = t.integer("steps", minimum=1, maximum=MAX_PLAN_STEPS)
     max_step = t.number("max_step", positive=True)
     if yaw_targeted:
         if "max_dtheta_deg" not in t:
@@ -242,8 +252,8 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         tolerance=tolerance,
         yaw_tolerance=math.radians(t.number("yaw_tolerance_deg", DEFAULT_YAW_TOLERANCE_DEG, positive=True)),
         effort_weight=t.number("effort_weight", DEFAULT_EFFORT_WEIGHT, nonneg=True),
-        planning_elements=t.triple("planning_elements", count, list(DEFAULT_PLANNING_ELEMENTS)),
-        planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=1, maximum=3),
-        max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1),
+        planning_elements=_planning_elements(t),
+        planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=2, maximum=3),
+        max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1, maximum=MAX_ROLLOUTS),
         world_target=world_target, world_origin=world_origin, target_state=target_state,
     )

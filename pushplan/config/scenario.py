@@ -50,15 +50,13 @@ from fe_contact import Command, Friction, Gripper, Material, Model, Release, Sol
 from fe_contact.stepping.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
+from ..limits import (MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LOCAL_ITER, MAX_NEWTON_ITER,
+                      MAX_STEPS, MIN_TOLERANCE)
 from .commands import MAX_TURN_DEG, commands_to_list
 from .files import read_toml
-from .validate import Table, count, positive_number
+from .validate import Table, integer, positive_number
 
 EXTRA_TABLES = ("plan", "mujoco", "sweep")
-MAX_STEPS = 100_000
-"""Most load steps a scenario may expand to (``repeat`` included): a guard against typos."""
-MAX_ELEMENTS = 1_000_000
-"""Most hex8 elements of a block: far beyond what fits in memory (dense flexibility matrix)."""
 PLAUSIBLE = {"material.young": (1e4, 1e12, "Pa"), "block.size": (1e-4, 10.0, "m")}
 """Ranges outside which a value is valid but probably in the wrong unit: moduli from soft
 foams (~10 kPa) to diamond (~1 TPa); blocks from 0.1 mm to 10 m."""
@@ -95,14 +93,21 @@ class Scenario:
     gripper: Gripper | None = None
     release: Release | None = None
 
-    def model(self, elements=None, quadrature=None) -> Model:
-        """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh.
+    def model(self, elements=None, quadrature=None, what: str | None = None) -> Model:
+        """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh
+        (``what`` names the override in messages).  Every model of every command is built
+        here, after the memory budget (:func:`~pushplan.config.budget.check_memory`).
 
         Raises
         ------
         InputError
-            ``fe_contact`` rejects a value (its message names it).
+            ``fe_contact`` rejects a value (its message names it), or the mesh's
+            estimated memory exceeds the available memory.
         """
+        from .budget import check_memory
+
+        check_memory(elements or self.elements, quadrature or self.quadrature,
+                     what=what or ("block.elements" if elements is None else "the mesh"))
         try:
             return Model(
                 mesh=block_mesh(self.size, elements or self.elements),
@@ -167,12 +172,15 @@ def _solver(table) -> SolverOptions:
         t.choice("local_method", LOCAL_METHODS)
     if "reuse_tangent" in t:
         t.boolean("reuse_tangent")
-    for k in ("local_tol", "newton_tol", "refresh_ratio"):
+    for k in ("local_tol", "newton_tol"):
+        if k in t and t.number(k, positive=True, hi=1.0) < MIN_TOLERANCE:
+            raise InputError(f"solver.{k} must be >= {MIN_TOLERANCE} (below double rounding it cannot be "
+                             f"reached), got {t.data[k]!r}")
+    if "refresh_ratio" in t:
+        t.number("refresh_ratio", positive=True, hi=1.0)
+    for k, most in (("local_max_iter", MAX_LOCAL_ITER), ("newton_max_iter", MAX_NEWTON_ITER)):
         if k in t:
-            t.number(k, positive=True, hi=1.0)
-    for k in ("local_max_iter", "newton_max_iter"):
-        if k in t:
-            t.integer(k, minimum=1)
+            t.integer(k, minimum=1, maximum=most)
     try:
         return SolverOptions(**values)
     except ValueError as exc:  # a check of fe_contact's own not repeated above; its message names the field
@@ -183,7 +191,7 @@ def _stiffness(t: Table, k: str) -> float:
     value = t.data[k]
     if isinstance(value, float) and value == math.inf:
         return value  # a rigid drive, written as inf
-    return t.number(k, positive=True)
+    return t.number(k, positive=True, hi=MAX_GRIPPER_STIFFNESS)
 
 
 def _gripper(top: Table) -> Gripper | None:
@@ -225,6 +233,11 @@ def _warn_implausible(key: str, values) -> None:
             return
 
 
+def _axis_count(key: str, value) -> int:
+    """A :func:`~pushplan.config.validate.triple` check: elements along one axis."""
+    return integer(key, value, 1, MAX_ELEMENTS_PER_AXIS)
+
+
 def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     """Validate a scenario given as a dict (the parsed TOML, or ``Scenario.to_dict()``)."""
     top = Table(data, "", TOP_KEYS)
@@ -235,10 +248,10 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     if "friction" not in top:
         raise InputError("missing table [friction]")
     block = top.table("block", {"size", "elements", "quadrature"}, required={"size", "elements"})
-    elements = block.triple("elements", count)
+    elements = block.triple("elements", _axis_count)
     if math.prod(elements) > MAX_ELEMENTS:
         raise InputError(f"block.elements must give at most {MAX_ELEMENTS} elements, got {list(elements)}")
-    quadrature = block.integer("quadrature", 3, minimum=1)
+    quadrature = block.integer("quadrature", 3, minimum=1, maximum=3)
     if quadrature not in (2, 3):
         raise InputError(f"block.quadrature must be 2 or 3 (1 leaves hourglass modes), got {quadrature}")
     material = top.table("material", {"young", "poisson", "density"}, required={"young", "poisson"})

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..limits import MAX_WORKERS
 from .files import read_toml
 from .scenario import parse_scenario
 from .validate import Table
@@ -346,7 +347,7 @@ def parse_sweep(data: dict, path) -> Sweep:
     parse_scenario(base_data, name=base.stem)  # the base alone must be valid
     run = top.choice("run", RUNNERS, "simulate")
     executor = top.choice("executor", EXECUTORS, "process")
-    workers = top.integer("workers", os.cpu_count() or 1, minimum=1)
+    workers = top.integer("workers", os.cpu_count() or 1, minimum=1, maximum=MAX_WORKERS)
     overrides, grid = _dotted_table(top, "set"), _dotted_table(top, "grid")
     _check_grid(grid, overrides)
     cases = expand_cases(name, run, base_data, overrides, grid)

@@ -14,6 +14,7 @@ import math
 from typing import Any
 
 from ..errors import InputError
+from ..limits import MAX_COUNT
 
 _MISSING = object()
 
@@ -21,60 +22,75 @@ _MISSING = object()
 def number(key: str, value: Any, *, positive=False, nonneg=False, lo=None, hi=None) -> float:
     """``value`` as a finite float; bounds ``lo < v < hi`` (exclusive) when given."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"{key} must be a number, got {value!r}")
-    v = float(value)
+        raise InputError(f"{key} must be a number, got {short(value)}")
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the largest float, 1.8e308
+        raise InputError(f"{key} must be a number a float holds (|v| < 1.8e308), got {short(value)}") from None
     if not math.isfinite(v):
-        raise InputError(f"{key} must be finite, got {value!r}")
+        raise InputError(f"{key} must be finite, got {short(value)}")
     if positive and v <= 0:
-        raise InputError(f"{key} must be > 0, got {value!r}")
+        raise InputError(f"{key} must be > 0, got {short(value)}")
     if nonneg and v < 0:
-        raise InputError(f"{key} must be >= 0, got {value!r}")
+        raise InputError(f"{key} must be >= 0, got {short(value)}")
     if lo is not None and not v > lo:
-        raise InputError(f"{key} must be > {lo}, got {value!r}")
+        raise InputError(f"{key} must be > {lo}, got {short(value)}")
     if hi is not None and not v < hi:
-        raise InputError(f"{key} must be < {hi}, got {value!r}")
+        raise InputError(f"{key} must be < {hi}, got {short(value)}")
     return v
 
 
 def integer(key: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
+    """``value`` as an int in ``[minimum, maximum]``; ``maximum`` None is
+    :data:`~pushplan.limits.MAX_COUNT` (every count has a stated maximum)."""
+    maximum = MAX_COUNT if maximum is None else maximum
     if isinstance(value, bool) or not isinstance(value, int):
-        raise InputError(f"{key} must be an integer, got {value!r}")
+        raise InputError(f"{key} must be an integer, got {short(value)}")
     if value < minimum:
-        raise InputError(f"{key} must be >= {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise InputError(f"{key} must be <= {maximum}, got {value!r}")
+        raise InputError(f"{key} must be >= {minimum}, got {short(value)}")
+    if value > maximum:
+        raise InputError(f"{key} must be <= {maximum}, got {short(value)}")
     return value
+
+
+def short(value: Any) -> str:
+    """``repr(value)`` cut to 60 characters (a 5000-digit integer or a huge list in a message)."""
+    try:
+        text = repr(value)
+    except ValueError:  # an int beyond Python's int-to-string digit limit
+        return f"an integer of about {int(value.bit_length() * 0.30103)} digits"
+    return text if len(text) <= 60 else f"{text[:40]}... ({len(text)} characters)"
 
 
 def string(key: str, value: Any, *, nonempty=False) -> str:
     if not isinstance(value, str) or (nonempty and not value):
-        raise InputError(f"{key} must be a {'non-empty ' if nonempty else ''}string, got {value!r}")
+        raise InputError(f"{key} must be a {'non-empty ' if nonempty else ''}string, got {short(value)}")
     return value
 
 
 def boolean(key: str, value: Any) -> bool:
     if not isinstance(value, bool):
-        raise InputError(f"{key} must be true or false, got {value!r}")
+        raise InputError(f"{key} must be true or false, got {short(value)}")
     return value
 
 
 def choice(key: str, value: Any, options) -> Any:
     if value not in tuple(options):
-        raise InputError(f"{key} must be one of {tuple(options)}, got {value!r}")
+        raise InputError(f"{key} must be one of {tuple(options)}, got {short(value)}")
     return value
 
 
 def triple(key: str, value: Any, check) -> tuple:
     """A list of 3 values, each checked by ``check(key[i], v)``."""
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InputError(f"{key} must be a list of 3 values, got {value!r}")
+        raise InputError(f"{key} must be a list of 3 values, got {short(value)}")
     return tuple(check(f"{key}[{i}]", v) for i, v in enumerate(value))
 
 
 def check_keys(key: str, data: Any, allowed, required=()) -> dict:
     """``data`` as a table holding only ``allowed`` keys and every ``required`` one."""
     if not isinstance(data, dict):
-        raise InputError(f"{key} must be a table, got {data!r}")
+        raise InputError(f"{key} must be a table, got {short(data)}")
     prefix = f"{key}." if key else ""
     for k in data:
         if k not in allowed:

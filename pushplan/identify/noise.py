@@ -20,6 +20,8 @@ import numpy as np
 
 from ..config.observations import FORCE_COLUMNS, Observations
 from ..config.validate import number
+from ..errors import InputError
+from ..limits import MAX_FORCE_NOISE, MAX_FORCE_NOISE_REL, MAX_POSE_NOISE, MIN_POSE_NOISE, MIN_YAW_NOISE_DEG
 
 
 @dataclass(frozen=True)
@@ -36,12 +38,14 @@ class NoiseModel:
     force_resolution: float = 1e-3
 
     def __post_init__(self):
-        number("pose_noise", self.pose_noise, positive=True)
-        number("force_noise", self.force_noise, nonneg=True)
-        number("force_noise_rel", self.force_noise_rel, nonneg=True)
+        if not MIN_POSE_NOISE <= number("pose_noise", self.pose_noise, positive=True) <= MAX_POSE_NOISE:
+            raise InputError(f"pose_noise must be from {MIN_POSE_NOISE} to {MAX_POSE_NOISE} m, got {self.pose_noise}")
+        number("force_noise", self.force_noise, nonneg=True, hi=MAX_FORCE_NOISE)
+        number("force_noise_rel", self.force_noise_rel, nonneg=True, hi=MAX_FORCE_NOISE_REL)
         number("force_resolution", self.force_resolution, positive=True)
-        if self.yaw_noise_deg is not None:
-            number("yaw_noise_deg", self.yaw_noise_deg, positive=True)
+        if self.yaw_noise_deg is not None and number("yaw_noise_deg", self.yaw_noise_deg,
+                                                     positive=True) < MIN_YAW_NOISE_DEG:
+            raise InputError(f"yaw_noise_deg must be >= {MIN_YAW_NOISE_DEG}, got {self.yaw_noise_deg}")
 
     def yaw_sigma_deg(self, size) -> float:
         if self.yaw_noise_deg is not None:

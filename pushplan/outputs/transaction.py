@@ -48,6 +48,45 @@ _FULL = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exce
          errno.EFBIG: "file too large", errno.EROFS: "read-only file system"}
 
 
+MAX_NAME_BYTES = 255 - len(".." + "0" * 8 + ".partial")
+"""Longest output name: its hidden siblings (``.NAME.XXXXXXXX.partial``, ``.NAME.lock``,
+``.NAME.XXXXXXXX.tmp``) must fit the file system's 255-byte names."""
+MAX_PATH_BYTES = 4096 - 32
+"""Longest output path (``PATH_MAX`` 4096, room for the sibling suffixes)."""
+
+
+def check_output_path(path, what: str = "--out", folder: bool = True) -> Path:
+    """The absolute output path, refused with one line (:class:`InputError`) when it
+    cannot be written as a transaction: a symbolic link (dangling or not: the swap
+    would replace the link, not its target), a name too long for its siblings
+    (:data:`MAX_NAME_BYTES`), a read-only target (no owner write bit, or no access),
+    a file where a folder goes or the reverse, and (``folder`` False: an output file)
+    a parent folder that does not exist or cannot be written."""
+    raw = Path(path)
+    out = Path(os.path.abspath(raw))
+    if os.path.islink(raw) or os.path.islink(out):
+        target = os.readlink(out)
+        state = "" if out.exists() else ", dangling"
+        raise InputError(f"{what} {raw} is a symbolic link (to {target}{state}): give the real path")
+    if len(os.fsencode(out.name)) > MAX_NAME_BYTES or len(os.fsencode(out)) > MAX_PATH_BYTES:
+        raise InputError(f"{what}: the name {out.name[:40]}... ({len(os.fsencode(out.name))} bytes) is too long "
+                         f"(at most {MAX_NAME_BYTES} bytes a name, {MAX_PATH_BYTES} a path)")
+    if out.exists():
+        if folder and not out.is_dir():
+            raise InputError(f"{what}: output path exists and is not a folder: {out}")
+        if not folder and out.is_dir():
+            raise InputError(f"{what} {out} is a folder, not a file")
+        if not (os.stat(out).st_mode & 0o200) or not os.access(out, os.W_OK):
+            raise InputError(f"{what} {out} is read-only: make it writable or choose another path")
+    if not folder:
+        parent = out.parent
+        if not parent.is_dir():
+            raise InputError(f"{what} {out}: the folder {parent} does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK) or not (os.stat(parent).st_mode & 0o200):
+            raise InputError(f"{what} {out}: cannot write the folder {parent}")
+    return out
+
+
 def output_failure(exc: OSError, where) -> OutputFailure | None:
     """The :class:`OutputFailure` for a full disk, quota or read-only file system, else None."""
     reason = _FULL.get(exc.errno)
@@ -173,6 +212,21 @@ class OutputLock:
             os.close(self.fd)
             self.fd = None
 
+    def __enter__(self) -> "OutputLock":
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.release()
+        return False
+
+
+def output_file_lock(path, what: str) -> OutputLock:
+    """``with output_file_lock(path, "--figure"):`` a single output file (written with
+    :mod:`pushplan.outputs.atomic`) checked like ``--out`` (:func:`check_output_path`)
+    and locked for the run: a second run onto it refuses at once."""
+    return OutputLock(check_output_path(path, what, folder=False))
+
 
 class OutputTransaction:
     """Write a command's output folder as one transaction.
@@ -193,10 +247,8 @@ class OutputTransaction:
         such as a sweep's case folders).
     """
 
-    def __init__(self, out, owned=(), lock: bool = True):
-        out = Path(os.path.abspath(out))
-        if out.exists() and not out.is_dir():
-            raise InputError(f"output path exists and is not a folder: {out}")
+    def __init__(self, out, owned=(), lock: bool = True, what: str = "--out"):
+        out = check_output_path(out, what)
         cwd = Path.cwd().resolve()
         if out.exists() and (out.resolve() == cwd or out.resolve() in cwd.parents):
             raise InputError(f"--out {out} is the current folder or holds it: the output folder is replaced "
@@ -283,7 +335,7 @@ class OutputTransaction:
         return False
 
 
-def output_transaction(out, owned=(), lock: bool = True) -> OutputTransaction:
+def output_transaction(out, owned=(), lock: bool = True, what: str = "--out") -> OutputTransaction:
     """``with output_transaction(args.out, owned) as tx:`` write into ``tx.path``;
     ``tx.out`` holds the result when the block ends without an exception.
 
@@ -295,4 +347,4 @@ def output_transaction(out, owned=(), lock: bool = True) -> OutputTransaction:
         The disk filled up (or a quota, or a read-only file system) while writing;
         the previous output is left as it was.
     """
-    return OutputTransaction(out, owned, lock)
+    return OutputTransaction(out, owned, lock, what)

@@ -198,7 +198,8 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -
     if reach:
         _log_line(log, "warning: " + reach)
     release = scenario.release  # the rollouts show the rest pose whenever the scenario lets go
-    coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature),
+    coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature,
+                                     what="plan.planning_elements"),
                         press, "planning", release=release, after=after)
     fine = FeRollouts(scenario.model(), press, "verification", release=release, after=after)
     naive = naive_commands(spec)

@@ -39,7 +39,8 @@ from ..config.sweep import EXECUTORS, HEATMAP_SUFFIXES, Sweep
 from ..config.validate import choice, integer
 from ..errors import InputError
 from ..outputs.atomic import atomic_write_bytes, atomic_write_json, prepare_output_dir
-from ..outputs.transaction import OutputLock, output_transaction, recover_siblings, remove_temporaries
+from ..outputs.transaction import (OutputLock, check_output_path, output_file_lock, output_transaction, recover_siblings,
+                                     remove_temporaries)
 from ..run import RunStatus, RunSummary, StepSummary
 from .sweep_pool import SCHEDULER_TIMEOUT_S, connect, run_dask, run_local, worker_environment
 from .sweep_tables import case_row, heatmap_figure, write_tables
@@ -215,8 +216,9 @@ def _options(sweep: Sweep, executor, scheduler, workers, figure) -> tuple[str, i
         figure = Path(figure)
         if sweep.heatmap is None:
             raise InputError(f"--figure {figure}: the sweep file has no [heatmap] table")
-        if figure.suffix not in HEATMAP_SUFFIXES or not figure.parent.is_dir() or not os.access(figure.parent, os.W_OK):
-            raise InputError(f"--figure must be a {'/'.join(HEATMAP_SUFFIXES)} file in a writable folder, got {figure}")
+        if figure.suffix not in HEATMAP_SUFFIXES:
+            raise InputError(f"--figure must be a {'/'.join(HEATMAP_SUFFIXES)} file, got {figure}")
+        figure = check_output_path(figure, "--figure", folder=False)
     return executor, workers, figure
 
 
@@ -298,6 +300,8 @@ def run_sweep(sweep: Sweep, out_dir, executor: str | None = None, scheduler: str
     with contextlib.ExitStack() as stack:
         client = _dask_client(stack, scheduler, workers, cluster_options or {}) if executor == "dask" else None
         out = _locked_output(stack, out_dir, sweep)
+        if figure is not None:
+            stack.enter_context(output_file_lock(figure, "--figure"))
         state = _Collector(sweep, out / "cases", progress)
         state.scan(rerun_failed)
         if state.todo and client is not None:
@@ -318,9 +322,7 @@ def run_sweep(sweep: Sweep, out_dir, executor: str | None = None, scheduler: str
 def _locked_output(stack: contextlib.ExitStack, out_dir, sweep: Sweep) -> Path:
     """The sweep folder, locked for the run (a second sweep into it refuses), with the
     leftovers of killed runs repaired or removed; ``sweep.json`` written."""
-    out = Path(os.path.abspath(out_dir))
-    if out.exists() and not out.is_dir():
-        raise InputError(f"output path exists and is not a folder: {out}")
+    out = check_output_path(out_dir)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
