@@ -28,3 +28,19 @@ workers = 1
 [grid]
 "friction.mu_y" = [0.1, 0.2]
 """
+
+
+def killing_case(task: dict) -> dict:
+    """A sweep-pool case for the fault tests (importable by spawned workers): counts its
+    attempts in ``task["dir"]`` and, while ``task["kill"]`` attempts remain, kills its own
+    worker with SIGKILL (as the OOM killer would), deterministically, mid-case."""
+    import os
+    import signal
+    from pathlib import Path
+
+    marker = Path(task["dir"]) / f"case{task['id']}"
+    attempt = len(list(marker.parent.glob(f"{marker.name}.attempt*"))) + 1
+    (marker.parent / f"{marker.name}.attempt{attempt}").touch()
+    if attempt <= task["kill"]:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return {"id": task["id"], "attempt": attempt, "pid": os.getpid()}
