@@ -357,14 +357,6 @@ def test_a_peer_answering_http_is_not_a_dask_scheduler(tmp_path):
     assert len(lines) == 1 and "does not speak the Dask protocol" in lines[0], proc.stderr
 
 
-def children(pid: int) -> list[int]:
-    found = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        text = (task / "children").read_text().split()
-        found += [int(c) for c in text]
-    return found
-
-
 def test_a_killed_worker_is_replaced_and_its_case_rerun(tmp_path):
     """Deterministic (it was timed, and killed a worker that could be gone already:
     ProcessLookupError): case 1 kills its own worker (SIGKILL) on its first attempt; the
