@@ -38,11 +38,13 @@ import h5py
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["LocalProblem", "read_local_problem", "read_sparse_matrix", "write_local_problem"]
+from .hdf5_checked import CSR, dataset, read_array, read_sparse_matrix, read_string, scalar_int
+
+__all__ = ["MAX_CONTACTS", "MAX_DENSE_BYTES", "LocalProblem", "read_local_problem", "read_sparse_matrix",
+           "write_local_problem"]
 
 ANISOTROPY_GROUP = "pushplan_anisotropy"
 FORMAT_VERSION = 1
-_TRIPLET_MIN, _CSC, _CSR = 0, -1, -2
 
 
 @dataclass(frozen=True)
@@ -102,80 +104,28 @@ class LocalProblem:
 
 
 MAX_CONTACTS = 20_000
-"""Largest local problem :func:`read_local_problem` reads by default (W of 29 GB)."""
+"""Most contacts :func:`read_local_problem` reads."""
+MAX_DENSE_BYTES = 4 * 2**30
+"""Largest dense ``W`` (8 (3 nc)^2 bytes) :func:`read_local_problem` builds by default:
+4 GiB, 7723 contacts; checked on the declared shape before anything is read."""
 
 
-def _dataset(group: h5py.Group, name: str) -> h5py.Dataset:
-    """The dataset ``name`` of ``group``; ValueError naming it when absent or a group."""
-    obj = group.get(name)
-    if not isinstance(obj, h5py.Dataset):
-        raise ValueError(f"{group.file.filename}: dataset {group.name.rstrip('/')}/{name} is "
-                         f"{'missing' if obj is None else 'not a dataset'}")
-    return obj
-
-
-def _scalar(group: h5py.Group, name: str) -> int:
-    """The integer in the one-element dataset ``name`` of ``group``."""
-    d = _dataset(group, name)
-    if d.size != 1 or d.dtype.kind not in "iuf":
-        raise ValueError(f"{group.file.filename}: {group.name.rstrip('/')}/{name} must hold one number, "
-                         f"got shape {d.shape} of {d.dtype}")
-    v = d[()].ravel()[0] if d.shape else d[()]
-    if not float(v).is_integer():
-        raise ValueError(f"{group.file.filename}: {group.name.rstrip('/')}/{name} must be an integer, got {v}")
-    return int(v)
-
-
-def read_sparse_matrix(group: h5py.Group) -> sp.csr_array:
-    """Read an FCLIB ``fclib_matrix`` group ``{m, n, nz, nzmax, p, i, x}``.
-
-    Duplicate triplet entries are summed.
-
-    Raises
-    ------
-    ValueError
-        Unknown ``nz`` code or arrays inconsistent with ``m``, ``n``.
-    """
-    where = group.name
-    m, n, nz = (_scalar(group, k) for k in ("m", "n", "nz"))
-    if m < 0 or n < 0:
-        raise ValueError(f"{where}: negative shape ({m}, {n})")
-    limit = m * n + max(m, n) + 1  # no layout stores more entries than a dense matrix
-    sizes = {k: _dataset(group, k).size for k in ("p", "i", "x")}
-    if max(sizes.values()) > limit:
-        raise ValueError(f"{where}: datasets p, i, x of {sizes['p']}, {sizes['i']}, {sizes['x']} entries "
-                         f"for a ({m}, {n}) matrix")
-    p = np.asarray(group["p"][()], dtype=np.int64).ravel()
-    i = np.asarray(group["i"][()], dtype=np.int64).ravel()
-    x = np.asarray(group["x"][()], dtype=float).ravel()
-    if nz >= _TRIPLET_MIN:
-        if min(p.size, i.size, x.size) < nz:
-            raise ValueError(f"{where}: triplet with nz={nz} but p, i, x have {p.size}, {i.size}, {x.size} entries")
-        return _checked_coo(where, x[:nz], i[:nz], p[:nz], (m, n)).tocsr()
-    if nz not in (_CSC, _CSR):
-        raise ValueError(f"{where}: unknown sparse layout nz={nz} (expected >= 0, -1 or -2)")
-    n_ptr = (n if nz == _CSC else m) + 1
-    if p.size != n_ptr or p[0] != 0 or np.any(np.diff(p) < 0) or min(i.size, x.size) < p[-1]:
-        raise ValueError(f"{where}: compressed pointers (nz={nz}) inconsistent with shape ({m}, {n}) "
-                         f"and {i.size} indices")
-    idx, val = i[: p[-1]], x[: p[-1]]
-    major = np.repeat(np.arange(n_ptr - 1), np.diff(p))
-    rows, cols = (idx, major) if nz == _CSC else (major, idx)
-    return _checked_coo(where, val, rows, cols, (m, n)).tocsr()
-
-
-def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS) -> LocalProblem:
+def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS,
+                       max_bytes: float = MAX_DENSE_BYTES) -> LocalProblem:
     """Read a local FCLIB problem, restoring the anisotropic one if our group is present.
 
-    The datasets are checked present, and their declared shapes consistent
-    (``mu`` (nc,), ``q`` (3 nc,), ``W`` (3 nc, 3 nc), at most ``max_contacts``
-    contacts), before anything of their size is read.
+    Every dataset is checked (:mod:`fe_contact.io.hdf5_checked`: a dataset, real
+    numbers, the declared size) and the declared shapes consistent (``mu`` (nc,),
+    ``q`` (3 nc,), ``W`` (3 nc, 3 nc), at most ``max_contacts`` contacts, a dense ``W``
+    of at most ``max_bytes``) before anything of their size is read.
 
     Parameters
     ----------
     path : path of an HDF5 file with a ``/fclib_local`` group.
     max_contacts : int
-        Largest problem read (``W`` is dense: 8 (3 nc)^2 bytes).
+        Largest problem read.
+    max_bytes : float
+        Largest dense ``W`` built, bytes (``8 (3 nc)^2``).
 
     Returns
     -------
@@ -184,40 +134,55 @@ def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS
     Raises
     ------
     ValueError
-        Not a 3D local problem, a mixed problem (``V``, ``R``), a missing dataset,
-        or inconsistent data.
+        Not an HDF5 file, not a 3D local problem, a mixed problem (``V``, ``R``), a
+        missing or malformed dataset, or inconsistent data (file and dataset named).
     """
-    with h5py.File(path, "r") as f:
-        if "fclib_local" not in f:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot open as HDF5 ({' '.join(str(exc).split())[:100]})") from None
+    with f:
+        if not isinstance(f.get("fclib_local"), h5py.Group):
             raise ValueError(f"{path}: no /fclib_local group (not a local FCLIB problem)")
         loc = f["fclib_local"]
-        spacedim = _scalar(loc, "spacedim")
+        spacedim = scalar_int(loc, "spacedim")
         if spacedim != 3:
             raise ValueError(f"{path}: spacedim must be 3, got {spacedim}")
         if "V" in loc or "R" in loc:
             raise ValueError(f"{path}: mixed local problems (V, R, s) are not supported")
-        # declared shapes checked before anything of their size is read
-        nc = _dataset(loc, "vectors/mu").size
-        q_set = _dataset(loc, "vectors/q")
-        if q_set.shape not in ((3 * nc,), (nc, 3)):
-            raise ValueError(f"{path}: /fclib_local/vectors/q has shape {q_set.shape}, expected ({3 * nc},) "
-                             f"for the {nc} contacts of mu")
-        if nc < 1 or nc > max_contacts:
-            raise ValueError(f"{path}: {nc} contacts (mu), expected 1 to {max_contacts}")
-        shape = tuple(_scalar(loc, f"W/{k}") for k in ("m", "n"))
-        if shape != (3 * nc, 3 * nc):
-            raise ValueError(f"{path}: /fclib_local/W is declared {shape}, expected ({3 * nc}, {3 * nc}) "
-                             f"for {nc} contacts")
+        nc = _declared_contacts(path, loc, max_contacts, max_bytes)
         W = read_sparse_matrix(loc["W"]).toarray()
-        q = np.asarray(q_set[()], dtype=float).reshape(nc, 3)
-        mu = np.asarray(loc["vectors/mu"][()], dtype=float).ravel()
-        title = _read_string(loc, "info/title")
-        description = _read_string(loc, "info/description")
+        q = read_array(loc, "vectors/q", (3 * nc,)).reshape(nc, 3)
+        mu = read_array(loc, "vectors/mu", (nc,))
+        title, description = read_string(loc, "info/title"), read_string(loc, "info/description")
         r = _read_vector(f, "solution/r", nc)
         u = _read_vector(f, "solution/u", nc)
         if ANISOTROPY_GROUP not in f:
             return LocalProblem(W, q, mu, mu.copy(), np.zeros(nc), title, description, r, u)
+        if not isinstance(f.get(ANISOTROPY_GROUP), h5py.Group):
+            raise ValueError(f"{path}: /{ANISOTROPY_GROUP} must be a group")
         return _unscaled(f[ANISOTROPY_GROUP], W, q, mu, r, u, title, description, str(path))
+
+
+def _declared_contacts(path, loc: h5py.Group, max_contacts: int, max_bytes: float) -> int:
+    """The number of contacts ``nc`` from the declared shapes, checked before reading."""
+    nc = dataset(loc, "vectors/mu").size
+    q_set = dataset(loc, "vectors/q")
+    if q_set.shape not in ((3 * nc,), (nc, 3)):
+        raise ValueError(f"{path}: /fclib_local/vectors/q has shape {q_set.shape}, expected ({3 * nc},) "
+                         f"for the {nc} contacts of mu")
+    if nc < 1 or nc > max_contacts:
+        raise ValueError(f"{path}: {nc} contacts (mu), expected 1 to {max_contacts}")
+    if 8.0 * (3 * nc) ** 2 > max_bytes:
+        raise ValueError(f"{path}: {nc} contacts need a dense W of {8.0 * (3 * nc) ** 2 / 1e9:.3g} GB, more "
+                         f"than the {max_bytes / 1e9:.3g} GB allowed (max_bytes)")
+    if not isinstance(loc.get("W"), h5py.Group):
+        raise ValueError(f"{path}: /fclib_local/W must be a group (an FCLIB sparse matrix)")
+    shape = tuple(scalar_int(loc, f"W/{k}") for k in ("m", "n"))
+    if shape != (3 * nc, 3 * nc):
+        raise ValueError(f"{path}: /fclib_local/W is declared {shape}, expected ({3 * nc}, {3 * nc}) "
+                         f"for {nc} contacts")
+    return nc
 
 
 def write_local_problem(
@@ -333,10 +298,10 @@ def _unscaled(g: h5py.Group, Wp: np.ndarray, qp: np.ndarray, mu_p: np.ndarray, s
               title: str, description: str, where: str) -> LocalProblem:
     """Undo :func:`write_local_problem`'s scaling with the data of our extra group."""
     nc = qp.shape[0]
-    mu_x = _coefficients("mu_x", g["mu_x"][()], nc)
-    mu_y = _coefficients("mu_y", g["mu_y"][()], nc)
-    angle = _per_contact("angle", g["angle"][()], nc)
-    D = np.asarray(g["scaling"][()], dtype=float)
+    mu_x = _coefficients("mu_x", read_array(g, "mu_x", (1, nc)), nc)
+    mu_y = _coefficients("mu_y", read_array(g, "mu_y", (1, nc)), nc)
+    angle = _per_contact("angle", read_array(g, "angle", (1, nc)), nc)
+    D = read_array(g, "scaling", (3 * nc,)).reshape(nc, 3)
     if D.shape != (nc, 3) or np.any(D[:, 0] != 1.0) or np.any(D < 0) or not np.all(np.isfinite(D)):
         raise ValueError(f"{where}: /{ANISOTROPY_GROUP}/scaling must be (nc, 3) = (1, >=0, >=0), got {D.shape}")
     # The FCLIB cone ||s_t|| <= mu' s_n mapped by D must be the stored elliptic cone.
@@ -352,31 +317,33 @@ def _unscaled(g: h5py.Group, Wp: np.ndarray, qp: np.ndarray, mu_p: np.ndarray, s
     r = None if s is None else (D * s).ravel()
     u = None if up is None else np.where(keep, up.ravel() / np.where(keep, d, 1.0), 0.0)
     if zero.size:
-        if not np.array_equal(np.asarray(g["degenerate_index"][()]).ravel(), zero):
+        if not np.array_equal(read_array(g, "degenerate_index", (zero.size,), integer=True), zero):
             raise ValueError(f"{where}: /{ANISOTROPY_GROUP}/degenerate_index does not match the zeros of scaling")
-        W[zero, :] = read_sparse_matrix(g["W_degenerate_rows"]).toarray()
-        W[:, zero] = read_sparse_matrix(g["W_degenerate_cols_T"]).toarray().T
-        q[zero] = g["q_degenerate"][()]
+        W[zero, :] = _sparse_block(g, "W_degenerate_rows", (zero.size, 3 * nc))
+        W[:, zero] = _sparse_block(g, "W_degenerate_cols_T", (zero.size, 3 * nc)).T
+        q[zero] = read_array(g, "q_degenerate", (zero.size,))
         if r is not None and u is not None:
-            r[zero] = g["r_degenerate"][()]
-            u[zero] = g["u_degenerate"][()]
+            r[zero] = read_array(g, "r_degenerate", (zero.size,))
+            u[zero] = read_array(g, "u_degenerate", (zero.size,))
     return LocalProblem(W, q.reshape(nc, 3), mu_x, mu_y, angle, title, description,
                         None if r is None else r.reshape(nc, 3),
                         None if u is None else u.reshape(nc, 3))
 
 
-def _checked_coo(where: str, x: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape) -> sp.coo_array:
-    m, n = shape
-    if rows.size and (rows.min() < 0 or rows.max() >= m or cols.min() < 0 or cols.max() >= n):
-        raise ValueError(f"{where}: indices out of range for shape ({m}, {n}): rows "
-                         f"[{rows.min()}, {rows.max()}], columns [{cols.min()}, {cols.max()}]")
-    return sp.coo_array((x, (rows, cols)), shape=shape)
+def _sparse_block(g: h5py.Group, name: str, shape) -> np.ndarray:
+    """The sparse matrix group ``name`` of ``g``, of the declared ``shape``, dense."""
+    if not isinstance(g.get(name), h5py.Group):
+        raise ValueError(f"{g.file.filename}: {g.name}/{name} must be a group (an FCLIB sparse matrix)")
+    declared = tuple(scalar_int(g[name], k) for k in ("m", "n"))
+    if declared != tuple(shape):
+        raise ValueError(f"{g.file.filename}: {g.name}/{name} is declared {declared}, expected {tuple(shape)}")
+    return read_sparse_matrix(g[name]).toarray()
 
 
 def _write_sparse_matrix(g: h5py.Group, A: sp.csr_array) -> None:
     """Write ``A`` as an FCLIB compressed-row matrix (``nz = -2``)."""
     m, n = A.shape
-    for name, value in (("nzmax", A.nnz), ("m", m), ("n", n), ("nz", _CSR)):
+    for name, value in (("nzmax", A.nnz), ("m", m), ("n", n), ("nz", CSR)):
         _int_scalar(g, name, value)
     g.create_dataset("p", data=A.indptr.astype(np.int32))
     g.create_dataset("i", data=A.indices.astype(np.int32))
@@ -392,20 +359,10 @@ def _write_string(g: h5py.Group, name: str, text: str) -> None:
     g.create_dataset(name, data=np.array(raw, dtype=f"S{max(len(raw), 1)}"))
 
 
-def _read_string(g: h5py.Group, name: str) -> str:
-    if name not in g:
-        return ""
-    v = g[name][()]
-    return v.decode("utf-8", errors="replace") if isinstance(v, bytes) else str(v)
-
-
 def _read_vector(f: h5py.File, name: str, nc: int) -> np.ndarray | None:
     if name not in f:
         return None
-    v = np.asarray(f[name][()], dtype=float).ravel()
-    if v.size != 3 * nc:
-        raise ValueError(f"{f.filename}: /{name} has {v.size} entries, expected {3 * nc}")
-    return v.reshape(nc, 3)
+    return read_array(f, name, (3 * nc,)).reshape(nc, 3)
 
 
 def _atomic_write(path: Path, write) -> None:
