@@ -60,18 +60,22 @@ def load_model(source) -> tuple[Any, str]:
     Raises
     ------
     InputError
-        Missing file or MuJoCo rejects it (its message quoted).
+        Missing file, the checks of :func:`~pushplan.mujoco.mjcf_check.check_mjcf`, or
+        MuJoCo rejects it (its message quoted, on one line).
     """
     mj = mujoco_module()
     if isinstance(source, mj.MjModel):
         return source, ""
+    from .mjcf_check import check_mjcf
+
     path = Path(source)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"MJCF file not found: {path}")
+    check_mjcf(path)  # size, XML, finite numbers: before MuJoCo reads its defaults for them
     try:
         return mj.MjModel.from_xml_path(str(path)), str(path)
-    except ValueError as exc:  # MuJoCo's compiler error: the file is bad input
-        raise InputError(f"cannot load MJCF {path}: {exc}") from None
+    except ValueError as exc:  # MuJoCo's compiler error: the file is bad input (one line)
+        raise InputError(f"cannot load MJCF {path}: {' '.join(str(exc).split())}") from None
 
 
 def frame_of(m, d, name: str) -> tuple[str, int, np.ndarray, np.ndarray]:
