@@ -47,6 +47,8 @@ def cmd_import(args) -> int:
     from .units import engineering
 
     scene, _ = _scene(args)
+    if args.quiet:  # the scene loads and passes every check: nothing to print
+        return 0
     s = scene.scenario
     print(f"block {scene.block_body!r} ({scene.block_geom}): size {[round(v * 1e3, 6) for v in s.size]} mm, "
           f"mass {scene.block_mass * 1e3:.4g} g")
@@ -79,6 +81,8 @@ def cmd_compare(args) -> int:
     with tx:
         result = compare(scene, commands, settings, fe_model, models, tx.path)
     out = tx.out
+    if args.quiet:
+        return 0
     print("world frame: lower = lower-face centre displacement, yaw = its yaw change")
     print(f"{'model':>15} {'lower x,y (mm)':>20} {'yaw':>9} {'twist':>9} {'deviation':>10} {'wall':>7}")
     for name, run in result.models.items():
@@ -92,15 +96,10 @@ def cmd_compare(args) -> int:
 
 
 def cmd_cosim(args) -> int:
-    import math
-
-    import numpy as np
-
     from ..mujoco.cosim import run_cosimulation
     from ..outputs.atomic import atomic_write_json
     from ..outputs.transaction import output_transaction
-    from ..run.summary import RunStatus, StepSummary
-    from .units import deviation_text, engineering
+    from ..run.summary import RunStatus
 
     scene, settings = _scene(args)
     commands = _commands(args, scene)
@@ -110,7 +109,24 @@ def cmd_cosim(args) -> int:
         record = run_cosimulation(scene, commands, settings.gripper, settings.control_period, fe_model,
                                   rrd_path=None if args.no_rerun else tx.path / "cosim.rrd")
         atomic_write_json(tx.path / "cosim.json", record.to_dict())
-    out = tx.out
+    _print_cosim(args, scene, record, tx.out)
+    if record.status is not RunStatus.COMPLETED:
+        print(f"pushplan: solver failure at period {len(record.periods)}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    return 0
+
+
+def _print_cosim(args, scene, record, out) -> None:
+    """The period table and the rate (nothing with ``--quiet``)."""
+    import math
+
+    import numpy as np
+
+    from ..run.summary import StepSummary
+    from .units import deviation_text, engineering
+
+    if args.quiet:
+        return
     print("world frame: lower = lower-face centre displacement, yaw = its yaw change, "
           "F = gripper force on the block (N)")
     for p in record.periods:
@@ -126,10 +142,6 @@ def cmd_cosim(args) -> int:
           f"({len(record.periods)} periods, {record.steps_per_period} MuJoCo steps each, "
           f"{record.wall_s:.2f} s; start-up {record.startup_s:.2f} s loading the compiled kernels)")
     print(f"wrote {out / 'cosim.json'}" + ("" if args.no_rerun else f" and {out / 'cosim.rrd'}"))
-    if record.status is not RunStatus.COMPLETED:
-        print(f"pushplan: solver failure at period {len(record.periods)}", file=sys.stderr)
-        return EXIT_SOLVER_FAILURE
-    return 0
 
 
 def _export_path(args):
@@ -157,7 +169,8 @@ def cmd_export(args) -> int:
     fe_model = _fe_model(args, scene)
     with lock:
         path = export_plan(out, scene, commands, settings.gripper, settings.control_period, fe_model)
-    print(f"wrote {path} ({len(commands) + 1} knots of gripper and FE block pose, {settings.control_period} s apart)")
+    if not args.quiet:
+            print(f"wrote {path} ({len(commands) + 1} knots of gripper and FE block pose, {settings.control_period} s apart)")
     return 0
 
 
@@ -165,7 +178,7 @@ def _common(q, commands=True, fe=True) -> None:
     from ..limits import MAX_CONTROL_PERIOD, MAX_ELEMENTS_PER_AXIS
     from .args import count, real
 
-    q.add_argument("--quiet", action="store_true", help="print nothing but warnings, errors and the result lines")
+    q.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     q.add_argument("scene", help="scenario TOML with a [mujoco] table, or an MJCF .xml")
     q.add_argument("--block", help="block body or box geom (default from [mujoco] or 'block')")
     q.add_argument("--floor", help="floor plane geom (default from [mujoco] or 'floor')")

@@ -108,7 +108,8 @@ def cmd_view(args) -> int:
         import subprocess
 
         subprocess.Popen([exe, str(path)], start_new_session=True)
-        print(f"opened {path} in the rerun viewer")
+        if not args.quiet:
+            print(f"opened {path} in the rerun viewer")
         return 0
     reason = "no display" if exe else "no rerun viewer on PATH"
     print(f"pushplan: {reason}: open the recording with `rerun {path}` on a machine with a display "
@@ -128,4 +129,5 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_replay)
     p = subparsers.add_parser("view", help="open a recording in the rerun viewer")
     p.add_argument("file", help=".rrd recording")
+    p.add_argument("--quiet", action="store_true", help="no line when the viewer opens")
     p.set_defaults(func=cmd_view)

@@ -234,6 +234,18 @@ def parameter_columns(resolved: dict) -> dict:
     }
 
 
+def _check_plan(scenario) -> None:
+    """A case of a ``run = "plan"`` sweep: its ``[plan]`` table present and valid (a
+    world-frame plan is checked by the runner, which reads the MJCF scene)."""
+    from .plan import parse_plan
+
+    table = scenario.extra.get("plan")
+    if table is None:
+        raise InputError('run = "plan" needs a [plan] table in the base scenario (or set in the sweep)')
+    if not (isinstance(table, dict) and table.get("frame") == "world"):
+        parse_plan(scenario)
+
+
 def expand_cases(name: str, run: str, base_data: dict, overrides: dict, grid: dict) -> tuple[Case, ...]:
     """The full factorial product of ``grid`` (first key slowest) over the base
     scenario with ``overrides``; every case's scenario validated.
@@ -257,7 +269,10 @@ def expand_cases(name: str, run: str, base_data: dict, overrides: dict, grid: di
             for k, v in params.items():
                 apply_override(scenario, k, v)
             scenario["name"] = f"{name}-{case_id}"
-            resolved = parse_scenario(scenario).to_dict()
+            parsed = parse_scenario(scenario)
+            if run == "plan":
+                _check_plan(parsed)
+            resolved = parsed.to_dict()
         except InputError as exc:
             raise InputError(f"case {index} ({label}): {exc}") from None
         if not resolved["load"]:
