@@ -62,7 +62,7 @@ def test_cli_writes_the_study_and_rejects_bad_levels(tmp_path, capsys):
     (tmp_path / "s.toml").write_text(src)
     assert main(["convergence", str(tmp_path / "s.toml"), "--levels", "2", "--out", str(tmp_path / "bad")]) \
         == EXIT_BAD_INPUT
-    assert "--levels must be >= 3" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert "--levels: must be an integer from 3 to" in capsys.readouterr().err and not (tmp_path / "bad").exists()
     assert main(["convergence", str(tmp_path / "s.toml"), "--levels", "3", "--out", str(tmp_path / "out"),
                  "--quiet"]) == 0
     doc = json.loads((tmp_path / "out" / "convergence.json").read_text())

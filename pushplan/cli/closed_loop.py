@@ -44,6 +44,7 @@ def _recording(path, scenario, truth_runs, spec) -> None:
 
 def cmd_closed_loop(args) -> int:
     from ..config import load_scenario
+    from ..config.fingerprint import check_same_block
     from ..config.plan import parse_plan
     from ..identify import NoiseModel
     from ..identify.closed_loop import closed_loop
@@ -53,6 +54,7 @@ def cmd_closed_loop(args) -> int:
     scenario = load_scenario(args.scenario)
     spec = parse_plan(scenario)
     truth = load_scenario(args.truth)
+    check_same_block(scenario.to_dict(), truth.to_dict(), args.truth, force=args.force)
     truth.model()
     noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, force_resolution=args.force_resolution)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
@@ -82,6 +84,7 @@ def register(subparsers) -> None:
     p.add_argument("--truth", required=True, help="scenario TOML of the truth (same block, other friction)")
     p.add_argument("--out", required=True, help="output folder (closed_loop.json, recording.rrd)")
     p.add_argument("--identify", action="store_true", help="re-identify the friction after every push")
+    p.add_argument("--force", action="store_true", help="run with a truth of another block (size, material)")
     add_noise_flags(p, yaw=False)
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -65,3 +65,25 @@ def check_plan_scenario(plan: dict, tables: dict, path, force: bool = False) -> 
 def _short(value, limit: int = 60) -> str:
     text = json.dumps(value, sort_keys=True, default=str)
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+BLOCK_FIELDS = ("block.size", "material.young", "material.poisson", "material.density")
+"""What a truth model shares with the planning model in ``closed-loop`` (the block; the
+friction, mesh and solver may differ)."""
+
+
+def check_same_block(model: dict, truth: dict, path, force: bool = False) -> None:
+    """Refuse a truth scenario (``Scenario.to_dict()`` of ``path``) of another block
+    than the planning scenario's, unless ``force``.
+
+    Raises
+    ------
+    InputError
+        Names the fields that differ and both values.
+    """
+    differ = [k for k in BLOCK_FIELDS if json.dumps(_get(model, k), default=str) != json.dumps(_get(truth, k),
+                                                                                            default=str)]
+    if differ and not force:
+        detail = "; ".join(f"{k}: scenario {_short(_get(model, k))}, truth {_short(_get(truth, k))}" for k in differ)
+        raise InputError(f"--truth {path} is another block ({detail}); the closed loop executes the plan on the "
+                         "same block with other friction (--force to run it anyway)")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config.observations import FORCE_COLUMNS, Observations
+from ..config.observations import FORCE_COLUMNS, OBSERVED_COLUMNS, Observations
 from ..config.validate import number
 from ..errors import InputError
 from ..limits import MAX_FORCE_NOISE, MAX_FORCE_NOISE_REL, MAX_POSE_NOISE, MIN_POSE_NOISE, MIN_YAW_NOISE_DEG
@@ -54,9 +54,18 @@ class NoiseModel:
 
     def sigma(self, obs: Observations, size) -> np.ndarray:
         """Standard deviations stacked like :func:`~pushplan.identify.forward.stacked`
-        (one file, or several in order)."""
+        (one file, or several in order).
+
+        Raises
+        ------
+        InputError
+            A file without an observed column (the commands only).
+        """
         if not isinstance(obs, Observations):
             return np.concatenate([self.sigma(o, size) for o in obs])
+        if not obs.columns:
+            raise InputError("the observations hold the commands only: identification needs at least one observed "
+                             f"column ({', '.join(OBSERVED_COLUMNS)})")
         parts = []
         for k in obs.columns:
             v = obs.values[k]
