@@ -201,3 +201,34 @@ def test_a_bad_run_info_in_a_recording_is_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == EXIT_BAD_INPUT and len(err) == 1 and "run/info" in err[0] and path.name in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_scheduler_sending_a_plausible_length_then_garbage_is_one_line(tmp_path, capsys):
+    """Past the 8-byte probe (a plausible Dask frame length), garbage: Dask's decoder
+    fails with its own error types; one line, exit 2 (it was ``KeyError: 'client'``)."""
+    import socket
+    import struct
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+
+    def serve():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(struct.pack("<Q", 100) + b"\x93\xff\x00garbage" * 20)
+
+    threading.Thread(target=serve, daemon=True).start()
+    (tmp_path / "s.toml").write_text(BASE)
+    (tmp_path / "w.toml").write_text('base = "s.toml"\nworkers = 1\n[grid]\n"friction.mu_y" = [0.1]\n')
+    try:
+        rc = main(["sweep", str(tmp_path / "w.toml"), "--out", str(tmp_path / "out"), "--scheduler",
+                   f"127.0.0.1:{server.getsockname()[1]}"])
+    finally:
+        server.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == EXIT_BAD_INPUT and len(err) == 1 and "does not speak the Dask protocol" in err[0], err

@@ -180,13 +180,16 @@ def connect(scheduler: str, timeout: float = SCHEDULER_TIMEOUT_S):
         except MemoryError:  # an HTTP (or other) server's answer read as a Dask frame length
             box["error"] = "the peer does not speak the Dask protocol"
         except (OSError, ValueError, TypeError) as exc:  # what Client raises for a bad or unreachable address
-            box["error"] = f"cannot connect ({type(exc).__name__}: {' '.join(str(exc).split())})"
+            box["error"] = f"cannot connect ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})"
+        except Exception as exc:  # a peer sending a plausible length, then garbage: any decoding error
+            box["error"] = (f"the peer does not speak the Dask protocol ({type(exc).__name__}: "
+                            f"{' '.join(str(exc).split())[:200]})")
 
     thread = threading.Thread(target=attempt, daemon=True, name="pushplan-dask-connect")
     thread.start()
     thread.join(timeout + 2.0)
     if thread.is_alive():
         raise InputError(f"--scheduler {scheduler!r}: no Dask scheduler answered within {timeout:g} s")
-    if "error" in box:
-        raise InputError(f"--scheduler {scheduler!r}: {box['error']}")
+    if "client" not in box:
+        raise InputError(f"--scheduler {scheduler!r}: {box.get('error', 'no Dask client')}")
     return box["client"]
