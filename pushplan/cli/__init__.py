@@ -89,8 +89,11 @@ def main(argv=None) -> int:
 
 
 def _show_held(caught: list, status) -> None:
-    """Show each held-back warning once: input warnings always, others after a success
-    (or a bug's traceback)."""
+    """Show each held-back warning once: none before bad input's one line (exit 2),
+    input warnings before any other outcome, others after a success (or a bug's
+    traceback)."""
+    if status == EXIT_BAD_INPUT:
+        return
     for w in caught:
         if issubclass(w.category, InputWarning):
             _show_warning(w.message, w.category, w.filename, w.lineno)
