@@ -41,13 +41,16 @@ def print_report(report, out) -> None:
 def cmd_paper(args) -> int:
     """Exit 0, or 3 when a case's solver fails (the report keeps the finished steps)."""
     from ..config.budget import check_memory
-    from ..outputs.transaction import output_transaction
+    from contextlib import nullcontext
+
+    from ..outputs.transaction import OutputLock, check_output_path, output_transaction
     from ..studies.paper_run import run_paper
 
     check_memory(args.elements or PAPER_ELEMENTS, args.quadrature or 3, override=args.no_memory_check,
                  what="--elements")
+    docs = OutputLock(check_output_path(args.docs, "--docs")) if args.docs else nullcontext()
     tx = output_transaction(args.out, PAPER_FILES)
-    with tx:
+    with docs, tx:  # --docs: a shared folder (docs/figures) written file by file, atomically, locked
         report = run_paper(tx.path, elements=args.elements, quadrature=args.quadrature,
                            local_method=args.local_method, docs_dir=args.docs, progress=not args.quiet)
     print_report(report, args.out)
