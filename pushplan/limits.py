@@ -49,3 +49,13 @@ MAX_FLEX_POINTS = 16
 """``[mujoco] flex_points``, per direction (16^3 = 4096 flex vertices)."""
 MAX_GRIPPER_STIFFNESS = 1e15
 """N/m (N m/rad for the yaw spring): stiffer than any solid contact, inf is the rigid drive."""
+
+MAX_LENGTH = 100.0
+"""m: any length of a plan (target, step, tolerance); a block is centimetres to metres."""
+MIN_PLAN_STEP = 1e-9
+"""m: the smallest ``[plan] max_step`` (1 nm): below it a push is below the solver's
+tolerance and the calibration measures noise."""
+MIN_TOLERANCE_LENGTH = 1e-12
+"""m: the smallest ``[plan] tolerance``."""
+MAX_EFFORT_WEIGHT = 1e6
+"""``[plan] effort_weight`` (default a small fraction): larger only ignores the target."""
