@@ -59,3 +59,6 @@ MIN_TOLERANCE_LENGTH = 1e-12
 """m: the smallest ``[plan] tolerance``."""
 MAX_EFFORT_WEIGHT = 1e6
 """``[plan] effort_weight`` (default a small fraction): larger only ignores the target."""
+MAX_MUJOCO_STEPS = 10_000_000
+"""MuJoCo steps of one co-simulation or comparison model (commands x (control period +
+settle time) / timestep): about a minute of a small scene."""

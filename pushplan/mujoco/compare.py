@@ -26,6 +26,7 @@ from ..errors import InputError, SolverFailure
 from ..outputs.atomic import atomic_write_bytes, atomic_write_json
 from ..run.driver import drive
 from .flex import flex_run
+from .mjmodel import check_mujoco_work
 from .records import ComparisonStep
 from .rigid import rigid_force_run, rigid_weld_run
 from .scene import MjcfScene
@@ -145,6 +146,7 @@ def compare(scene: MjcfScene, commands: Sequence[Command] | None = None, setting
     _check(scene, commands, models)
     m = scene.mj_model("compare")
     traj = gripper_trajectory(scene, m, commands, settings.gripper, settings.control_period)
+    check_mujoco_work(len(commands), settings.control_period + settings.settle_time, m.opt.timestep)
     n_move = max(1, int(round(settings.control_period / m.opt.timestep)))
     n_settle = int(round(settings.settle_time / m.opt.timestep))
     s = scene.scenario

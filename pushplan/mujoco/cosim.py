@@ -19,7 +19,7 @@ from ..config.commands import command_to_dict
 from ..errors import InputError
 from ..run.summary import RunStatus, StepSummary
 from .coupling import CoSimulation
-from .mjmodel import geom_label, mocap_index, mujoco_module
+from .mjmodel import check_mujoco_work, geom_label, mocap_index, mujoco_module
 from .scene import MjcfScene, block_geom_pose
 from .trajectory import gripper_trajectory
 
@@ -131,6 +131,7 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
     mj = mujoco_module()
     m = scene.mj_model("run_cosimulation")
     traj = gripper_trajectory(scene, m, commands, gripper, control_period)
+    check_mujoco_work(len(commands), control_period, m.opt.timestep)
     n_sub = int(round(control_period / m.opt.timestep))
     if n_sub < 1 or abs(n_sub * m.opt.timestep - control_period) > 1e-9 * control_period:
         raise InputError(f"control_period {control_period} must be a multiple of the MuJoCo timestep {m.opt.timestep}")

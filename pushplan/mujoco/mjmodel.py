@@ -109,3 +109,21 @@ def mocap_index(m, name: str, what: str = "gripper") -> int:
     if bid < 0 or m.body_mocapid[bid] < 0:
         raise InputError(f"{what} {name!r} must be a mocap body to follow a command list")
     return int(m.body_mocapid[bid])
+
+
+def check_mujoco_work(n_commands: int, seconds_per_command: float, timestep: float) -> None:
+    """Refuse a run of more than :data:`~pushplan.limits.MAX_MUJOCO_STEPS` MuJoCo steps
+    (``n_commands * seconds_per_command / timestep``) before it starts.
+
+    Raises
+    ------
+    InputError
+        Names the commands, the time per command and the MJCF timestep.
+    """
+    from ..limits import MAX_MUJOCO_STEPS
+
+    steps = n_commands * seconds_per_command / timestep
+    if not steps <= MAX_MUJOCO_STEPS:
+        raise InputError(f"{n_commands} commands of {seconds_per_command:g} s at the MuJoCo timestep {timestep:g} s "
+                         f"are {steps:.3g} steps, more than {MAX_MUJOCO_STEPS} (a longer timestep, control_period "
+                         "or settle_time, or fewer commands)")
