@@ -157,11 +157,15 @@ def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS
         title, description = read_string(loc, "info/title"), read_string(loc, "info/description")
         r = _read_vector(f, "solution/r", nc)
         u = _read_vector(f, "solution/u", nc)
-        if ANISOTROPY_GROUP not in f:
-            return LocalProblem(W, q, mu, mu.copy(), np.zeros(nc), title, description, r, u)
-        if not isinstance(f.get(ANISOTROPY_GROUP), h5py.Group):
-            raise ValueError(f"{path}: /{ANISOTROPY_GROUP} must be a group")
-        return _unscaled(f[ANISOTROPY_GROUP], W, q, mu, r, u, title, description, str(path))
+        try:  # the values' own checks (finite, mu >= 0) named with the file
+            if ANISOTROPY_GROUP not in f:
+                return LocalProblem(W, q, mu, mu.copy(), np.zeros(nc), title, description, r, u)
+            if not isinstance(f.get(ANISOTROPY_GROUP), h5py.Group):
+                raise ValueError(f"/{ANISOTROPY_GROUP} must be a group")
+            return _unscaled(f[ANISOTROPY_GROUP], W, q, mu, r, u, title, description, str(path))
+        except ValueError as exc:
+            message = str(exc)
+            raise ValueError(message if message.startswith(str(path)) else f"{path}: {message}") from None
 
 
 def _declared_contacts(path, loc: h5py.Group, max_contacts: int, max_bytes: float) -> int:

@@ -6,6 +6,7 @@ object names and ids (unnamed objects as ``"#id"``) and the world frame of a bod
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -122,6 +123,8 @@ def check_mujoco_work(n_commands: int, seconds_per_command: float, timestep: flo
     """
     from ..limits import MAX_MUJOCO_STEPS
 
+    if not (math.isfinite(timestep) and timestep > 0):
+        raise InputError(f"the MJCF <option timestep> must be > 0 and finite, got {timestep}")
     steps = n_commands * seconds_per_command / timestep
     if not steps <= MAX_MUJOCO_STEPS:
         raise InputError(f"{n_commands} commands of {seconds_per_command:g} s at the MuJoCo timestep {timestep:g} s "

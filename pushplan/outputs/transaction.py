@@ -51,8 +51,9 @@ _FULL = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exce
 MAX_NAME_BYTES = 255 - len(".." + "0" * 8 + ".partial")
 """Longest output name: its hidden siblings (``.NAME.XXXXXXXX.partial``, ``.NAME.lock``,
 ``.NAME.XXXXXXXX.tmp``) must fit the file system's 255-byte names."""
-MAX_PATH_BYTES = 4096 - 32
-"""Longest output path (``PATH_MAX`` 4096, room for the sibling suffixes)."""
+MAX_PATH_BYTES = 4096 - 300
+"""Longest output path (``PATH_MAX`` 4096, with room for the sibling suffixes and the
+files written inside it, ``/.NAME.XXXXXXXX.tmp``: 300 bytes)."""
 
 
 def check_output_path(path, what: str = "--out", folder: bool = True) -> Path:
