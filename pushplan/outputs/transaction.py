@@ -69,9 +69,12 @@ def check_output_path(path, what: str = "--out", folder: bool = True) -> Path:
         target = os.readlink(out)
         state = "" if out.exists() else ", dangling"
         raise InputError(f"{what} {raw} is a symbolic link (to {target}{state}): give the real path")
-    if len(os.fsencode(out.name)) > MAX_NAME_BYTES or len(os.fsencode(out)) > MAX_PATH_BYTES:
+    if len(os.fsencode(out.name)) > MAX_NAME_BYTES:
         raise InputError(f"{what}: the name {out.name[:40]}... ({len(os.fsencode(out.name))} bytes) is too long "
-                         f"(at most {MAX_NAME_BYTES} bytes a name, {MAX_PATH_BYTES} a path)")
+                         f"(at most {MAX_NAME_BYTES} bytes)")
+    if len(os.fsencode(out)) > MAX_PATH_BYTES:
+        raise InputError(f"{what}: the path {str(out)[:40]}... ({len(os.fsencode(out))} bytes) is too long "
+                         f"(at most {MAX_PATH_BYTES} bytes)")
     if out.exists():
         if folder and not out.is_dir():
             raise InputError(f"{what}: output path exists and is not a folder: {out}")
