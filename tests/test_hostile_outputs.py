@@ -51,10 +51,10 @@ FILE_COMMANDS = {
     "mujoco export": ["mujoco", "export", str(XML), "--commands", "{tmp}/c.json", "--out", "{out}"],
 }
 FILE_SUFFIX = {"simulate --observations": ".csv", "sweep --figure": ".png", "mujoco export": ".xml"}
-FOLDER_HAZARDS = ("symlink", "dangling symlink", "long name", "read-only", "locked")
+FOLDER_HAZARDS = ("symlink", "dangling symlink", "long name", "long path", "read-only", "locked")
 FILE_HAZARDS = (*FOLDER_HAZARDS, "missing folder", "existing folder")
 FRAGMENT = {"symlink": "symbolic link", "dangling symlink": "dangling", "long name": "too long",
-            "read-only": "read-only", "locked": "in use", "missing folder": "does not exist",
+            "long path": "the path", "read-only": "read-only", "locked": "in use", "missing folder": "does not exist",
             "existing folder": "is a folder"}
 
 
@@ -81,6 +81,8 @@ def hazard_path(tmp: Path, hazard: str, suffix: str, folder: bool) -> tuple[Path
         return tmp / ("link" + suffix), real
     if hazard == "long name":
         return tmp / ("a" * 240 + suffix), real
+    if hazard == "long path":  # 4019 bytes: the files inside it would pass PATH_MAX
+        return tmp / ("/".join(["d" * 200] * 20) + suffix), real
     if hazard == "read-only":
         real.chmod(0o555 if folder else 0o444)
         return real, real
@@ -124,4 +126,4 @@ def test_a_hazardous_output_path_is_one_line_exit_2(command, hazard, folder, tmp
         assert path.is_symlink()
     hidden = [p.name for p in tmp_path.iterdir() if p.name.startswith(".") and not p.name.endswith(".lock")]
     assert hidden == []
-    assert not os.path.lexists(tmp_path / "no")
+    assert not os.path.lexists(tmp_path / "no") and not os.path.lexists(tmp_path / ("d" * 200))
