@@ -38,7 +38,7 @@ import h5py
 import numpy as np
 import scipy.sparse as sp
 
-from .hdf5_checked import CSR, dataset, read_array, read_sparse_matrix, read_string, scalar_int
+from .hdf5_checked import CSR, dataset, group, read_array, read_sparse_matrix, read_string, scalar_int
 
 __all__ = ["MAX_CONTACTS", "MAX_DENSE_BYTES", "LocalProblem", "read_local_problem", "read_sparse_matrix",
            "write_local_problem"]
@@ -142,9 +142,10 @@ def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS
     except OSError as exc:
         raise ValueError(f"{path}: cannot open as HDF5 ({' '.join(str(exc).split())[:100]})") from None
     with f:
-        if not isinstance(f.get("fclib_local"), h5py.Group):
+        if not isinstance(group(f, "fclib_local", optional=True), h5py.Group):
             raise ValueError(f"{path}: no /fclib_local group (not a local FCLIB problem)")
         loc = f["fclib_local"]
+        info = group(loc, "info", optional=True)
         spacedim = scalar_int(loc, "spacedim")
         if spacedim != 3:
             raise ValueError(f"{path}: spacedim must be 3, got {spacedim}")
@@ -154,14 +155,12 @@ def read_local_problem(path: str | os.PathLike, max_contacts: int = MAX_CONTACTS
         W = read_sparse_matrix(loc["W"]).toarray()
         q = read_array(loc, "vectors/q", (3 * nc,)).reshape(nc, 3)
         mu = read_array(loc, "vectors/mu", (nc,))
-        title, description = read_string(loc, "info/title"), read_string(loc, "info/description")
+        title, description = ("", "") if info is None else (read_string(info, "title"), read_string(info, "description"))
         r = _read_vector(f, "solution/r", nc)
         u = _read_vector(f, "solution/u", nc)
         try:  # the values' own checks (finite, mu >= 0) named with the file
-            if ANISOTROPY_GROUP not in f:
+            if group(f, ANISOTROPY_GROUP, optional=True) is None:
                 return LocalProblem(W, q, mu, mu.copy(), np.zeros(nc), title, description, r, u)
-            if not isinstance(f.get(ANISOTROPY_GROUP), h5py.Group):
-                raise ValueError(f"/{ANISOTROPY_GROUP} must be a group")
             return _unscaled(f[ANISOTROPY_GROUP], W, q, mu, r, u, title, description, str(path))
         except ValueError as exc:
             message = str(exc)
@@ -180,8 +179,7 @@ def _declared_contacts(path, loc: h5py.Group, max_contacts: int, max_bytes: floa
     if 8.0 * (3 * nc) ** 2 > max_bytes:
         raise ValueError(f"{path}: {nc} contacts need a dense W of {8.0 * (3 * nc) ** 2 / 1e9:.3g} GB, more "
                          f"than the {max_bytes / 1e9:.3g} GB allowed (max_bytes)")
-    if not isinstance(loc.get("W"), h5py.Group):
-        raise ValueError(f"{path}: /fclib_local/W must be a group (an FCLIB sparse matrix)")
+    group(loc, "W")
     shape = tuple(scalar_int(loc, f"W/{k}") for k in ("m", "n"))
     if shape != (3 * nc, 3 * nc):
         raise ValueError(f"{path}: /fclib_local/W is declared {shape}, expected ({3 * nc}, {3 * nc}) "
@@ -336,8 +334,7 @@ def _unscaled(g: h5py.Group, Wp: np.ndarray, qp: np.ndarray, mu_p: np.ndarray, s
 
 def _sparse_block(g: h5py.Group, name: str, shape) -> np.ndarray:
     """The sparse matrix group ``name`` of ``g``, of the declared ``shape``, dense."""
-    if not isinstance(g.get(name), h5py.Group):
-        raise ValueError(f"{g.file.filename}: {g.name}/{name} must be a group (an FCLIB sparse matrix)")
+    group(g, name)
     declared = tuple(scalar_int(g[name], k) for k in ("m", "n"))
     if declared != tuple(shape):
         raise ValueError(f"{g.file.filename}: {g.name}/{name} is declared {declared}, expected {tuple(shape)}")

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["dataset", "read_array", "read_sparse_matrix", "read_string", "scalar_int"]
+__all__ = ["dataset", "group", "read_array", "read_sparse_matrix", "read_string", "scalar_int"]
 
 TRIPLET_MIN, CSC, CSR = 0, -1, -2
 MAX_STRING_BYTES = 1 << 16
@@ -35,6 +35,20 @@ def dataset(group: h5py.Group, name: str) -> h5py.Dataset:
         raise ValueError(f"{_where(group, name)} cannot be opened ({' '.join(str(exc).split())[:80]})") from None
     if not isinstance(obj, h5py.Dataset):
         raise ValueError(f"{_where(group, name)} is {'missing' if obj is None else 'a group, not a dataset'}")
+    return obj
+
+
+def group(parent: h5py.Group, name: str, optional: bool = False) -> h5py.Group | None:
+    """The group ``name`` of ``parent`` (None when ``optional`` and absent); ValueError
+    naming file and group when it is a dataset or a link that cannot be followed."""
+    try:
+        obj = parent.get(name)
+    except (KeyError, RuntimeError, OSError, ValueError) as exc:
+        raise ValueError(f"{_where(parent, name)} cannot be opened ({' '.join(str(exc).split())[:80]})") from None
+    if obj is None and optional:
+        return None
+    if not isinstance(obj, h5py.Group):
+        raise ValueError(f"{_where(parent, name)} must be a group, got {'nothing' if obj is None else 'a dataset'}")
     return obj
 
 
