@@ -101,8 +101,8 @@ def test_kill_9_at_the_transaction_stages_leaves_old_or_new(command, tmp_path):
 def test_a_closed_loop_without_recording_keeps_no_old_recording(tmp_path):
     argv, owned = COMMANDS["closed-loop"]
     out = setup(tmp_path, owned)
-    assert main([a.format(tmp=tmp_path, out=out) for a in argv]) == 0
+    assert main([a.format(tmp=tmp_path, out=out) for a in argv]) in (0, 3)  # 3: outside the tolerance, files written
     assert (out / "recording.rrd").stat().st_size > 100
-    assert main([a.format(tmp=tmp_path, out=out) for a in argv] + ["--no-recording"]) == 0
+    assert main([a.format(tmp=tmp_path, out=out) for a in argv] + ["--no-recording"]) in (0, 3)
     assert not (out / "recording.rrd").exists()
     assert (out / "notes.txt").read_text() == "kept across runs"

@@ -84,7 +84,7 @@ def register(subparsers) -> None:
     p.add_argument("--truth", required=True, help="scenario TOML of the truth (same block, other friction)")
     p.add_argument("--out", required=True, help="output folder (closed_loop.json, recording.rrd)")
     p.add_argument("--identify", action="store_true", help="re-identify the friction after every push")
-    p.add_argument("--force", action="store_true", help="run with a truth of another block (size, material)")
+    p.add_argument("--force", action="store_true", help="run with a truth of another block size")
     add_noise_flags(p, yaw=False)
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

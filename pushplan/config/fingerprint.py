@@ -67,23 +67,38 @@ def _short(value, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-BLOCK_FIELDS = ("block.size", "material.young", "material.poisson", "material.density")
-"""What a truth model shares with the planning model in ``closed-loop`` (the block; the
-friction, mesh and solver may differ)."""
+BLOCK_FIELDS = ("block.size",)
+"""What a truth model shares with the planning model in ``closed-loop``: the block's
+geometry (the commands move its faces).  Its material, friction, mesh and solver may
+differ (a model error is what a closed loop is for); a material that differs is said."""
+MATERIAL_FIELDS = ("material.young", "material.poisson", "material.density")
+
+
+def _differ(a: dict, b: dict, fields) -> list:
+    return [k for k in fields if json.dumps(_get(a, k), default=str) != json.dumps(_get(b, k), default=str)]
 
 
 def check_same_block(model: dict, truth: dict, path, force: bool = False) -> None:
-    """Refuse a truth scenario (``Scenario.to_dict()`` of ``path``) of another block
-    than the planning scenario's, unless ``force``.
+    """Refuse a truth scenario (``Scenario.to_dict()`` of ``path``) of another block size
+    than the planning scenario's, unless ``force``; warn when the material differs.
 
     Raises
     ------
     InputError
         Names the fields that differ and both values.
     """
-    differ = [k for k in BLOCK_FIELDS if json.dumps(_get(model, k), default=str) != json.dumps(_get(truth, k),
-                                                                                            default=str)]
+    import warnings
+
+    from ..errors import InputWarning
+
+    def detail(fields):
+        return "; ".join(f"{k}: scenario {_short(_get(model, k))}, truth {_short(_get(truth, k))}" for k in fields)
+
+    differ = _differ(model, truth, BLOCK_FIELDS)
     if differ and not force:
-        detail = "; ".join(f"{k}: scenario {_short(_get(model, k))}, truth {_short(_get(truth, k))}" for k in differ)
-        raise InputError(f"--truth {path} is another block ({detail}); the closed loop executes the plan on the "
-                         "same block with other friction (--force to run it anyway)")
+        raise InputError(f"--truth {path} is another block ({detail(differ)}); the closed loop executes the plan on "
+                         "the same block (--force to run it anyway)")
+    material = _differ(model, truth, MATERIAL_FIELDS)
+    if material:
+        warnings.warn(f"--truth {path}: the material differs from the model's ({detail(material)}): "
+                      "the closed loop runs with this model error", InputWarning, stacklevel=2)
