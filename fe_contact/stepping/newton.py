@@ -139,7 +139,7 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         local, dU_free, failure = _contact_correction(model, state, tangent, workspace, U, R, r, it, timings,
                                                       local_problem_hook)
         if local is not None:
-            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
+            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual), local.method))
         if failure is not None:
             status, message = failure
             break
@@ -215,6 +215,34 @@ def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: n
     return max(float(np.linalg.norm((f_int - f_contact)[model.free_dofs])), model.weight)
 
 
+FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
+"""The local method a contact solve retries with when the chosen one does not converge."""
+
+
+def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace):
+    """The local contact problem ``u = W r + q`` of an iteration (scaled, see
+    :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
+    and, if that does not converge, retried from the same start with
+    :data:`FALLBACK` of it (semismooth Newton and the paper's Uzawa fail on
+    different problems: a tall block, mu 1.2 / 0.8, where Newton stalls at a
+    residual of 0.19 and Uzawa converges).  The solution's ``method`` says
+    which one solved it; if neither did, the one with the smaller residual is
+    returned."""
+    opts = model.options
+    first = None
+    for method in (opts.local_method, FALLBACK[opts.local_method]):
+        local = solve_local(
+            tangent.W_scaled, q_scaled, model.friction.mu_x, model.friction.mu_y,
+            method=method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
+            assume_spd=True,  # K_ff is SPD with the upper face prescribed
+            workspace=workspace if method == "newton" else None,
+        )
+        if local.converged:
+            return local
+        first = local if first is None or local.residual < first.residual else first
+    return first
+
+
 def _contact_correction(model: Model, state: State, tangent: Tangent, workspace, U, R, r, it: int,
                         timings: dict, local_problem_hook):
     """Contact solve and displacement update of one Newton iteration.
@@ -233,18 +261,14 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         return None, None, (Status.NOT_FINITE, f"non-finite contact problem at Newton iteration {it}: "
                                                "the solve with the tangent broke down")
     with _timed(timings, "local"):
-        local = solve_local(
-            tangent.W_scaled, q_scaled, model.friction.mu_x, model.friction.mu_y,
-            method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
-            assume_spd=True,  # K_ff is SPD with the upper face prescribed
-            workspace=workspace,
-        )
+        local = _solve_contact(model, tangent, q_scaled, r, workspace)
     if local_problem_hook is not None:
         local_problem_hook(tangent.W_scaled, q_scaled, local)
     if not local.converged:
         return local, None, (Status.CONTACT_NOT_CONVERGED,
-                             f"contact ({opts.local_method}) did not converge at Newton iteration {it}: "
-                             f"residual {local.residual:.3g} after {local.iterations} iterations")
+                             f"contact did not converge at Newton iteration {it} with {opts.local_method} nor "
+                             f"with {FALLBACK[opts.local_method]}: residual {local.residual:.3g} after "
+                             f"{local.iterations} iterations")
     with _timed(timings, "solve"):
         dU_free = finish_solve((local.r - r) @ T)
     if not np.all(np.isfinite(dU_free)):

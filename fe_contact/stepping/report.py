@@ -30,11 +30,13 @@ class NodeStatus(enum.IntEnum):
 @dataclass(frozen=True)
 class IterLog:
     """One Newton iteration: relative out-of-balance force before the update,
-    local-solver iterations and final local residual."""
+    local-solver iterations, final local residual and the local method that
+    solved the contact problem (the chosen one, or its fallback)."""
 
     newton_residual: float
     contact_iterations: int
     contact_residual: float
+    contact_method: str = ""
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,11 @@ class StepReport:
     @property
     def converged(self) -> bool:
         return self.status is Status.CONVERGED
+
+    @property
+    def contact_methods(self) -> tuple[str, ...]:
+        """The local methods that solved the step's contact problems, in order of first use."""
+        return tuple(dict.fromkeys(log.contact_method for log in self.iterations))
 
     @property
     def n_stick(self) -> int:
