@@ -48,7 +48,7 @@ from .stepping.model import (
     build_model,
     initial_state,
 )
-from .stepping.release import Release, ReleaseSchedule, run_release
+from .stepping.release import Release, ReleaseSchedule, Rest, release_to_rest, rest_check, run_release
 from .stepping.step import run, step
 from .stepping.warmup import warm_up
 from .linalg.threads import limit_blas_threads
@@ -67,6 +67,7 @@ __all__ = [
     "NodeStatus",
     "Release",
     "ReleaseSchedule",
+    "Rest",
     "SolverOptions",
     "State",
     "Status",
@@ -76,6 +77,8 @@ __all__ = [
     "build_model",
     "initial_state",
     "project_elliptic_cone",
+    "release_to_rest",
+    "rest_check",
     "run",
     "run_release",
     "solve_local",

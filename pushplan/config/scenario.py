@@ -197,13 +197,17 @@ def _gripper(top: Table) -> Gripper | None:
     return Gripper(xy, yaw)
 
 
-def _release(top: Table, density: float) -> Release | None:
+def _release(top: Table, density: float, commands: tuple[Command, ...]) -> Release | None:
     if "release" not in top:
         return None
     t = top.table("release", {"mode", "steps"}, required={"mode"})
     mode = t.choice("mode", RELEASE_MODES)
     if mode == "open" and density <= 0:
         raise InputError('release.mode = "open" needs a block with weight: set material.density > 0')
+    depth = sum(c.dz for c in commands)
+    if depth >= 0:
+        raise InputError(f"release.mode = {mode!r} needs a press before it: the loads' dz must sum to < 0 m, "
+                         f"got {depth:g}")
     return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS))
 
 
@@ -244,6 +248,7 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     material = top.table("material", {"young", "poisson", "density"}, required={"young", "poisson"})
     density = material.number("density", 0.0, nonneg=True)
     friction = top.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
+    commands = _commands(data.get("load", []))
     scenario = Scenario(
         name=top.string("name", name),
         description=top.string("description", ""),
@@ -255,12 +260,12 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         mu_x=friction.number("mu_x", nonneg=True),
         mu_y=friction.number("mu_y", nonneg=True),
         angle_deg=friction.number("angle_deg", 0.0),
-        commands=_commands(data.get("load", [])),
+        commands=commands,
         solver=_solver(data.get("solver", {})),
         extra={k: data[k] for k in EXTRA_TABLES if k in data},
         density=density,
         gripper=_gripper(top),
-        release=_release(top, density),
+        release=_release(top, density, commands),
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)
