@@ -117,6 +117,10 @@ class ReleaseSchedule:
         self.release = release
         self.weight = model.weight
         self.depth = max(0.0, -float(state.upper_translation[2]))
+        self.pad = model.pad is not None
+        if self.pad and (release.mode != "lift" or model.material.density <= 0):
+            raise ValueError("a frictional pad lets go by lifting (mode 'lift') a block with weight (material "
+                             "density > 0): without weight nothing holds the block once the pad's load is zero")
         if release.mode == "lift" and self.depth == 0:
             raise ValueError("a lift release needs a press before it (the upper face's height must be below "
                              f"its reference one, got {float(state.upper_translation[2])} m)")
@@ -127,6 +131,9 @@ class ReleaseSchedule:
         self.axial_stiffness = model.material.young * lx * ly / lz  # E A / H, N/m
         self.lifted_off = False
         self.contact_points: list[tuple[float, float]] = []  # (plate height m, plate force N) putting down
+        self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
+        if self.pad:
+            self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
         self.taken = 0
 
     @property
@@ -148,6 +155,8 @@ class ReleaseSchedule:
         return command
 
     def _lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
+        if self.pad:
+            return self._pad_lift(j, state, report)
         dz = self.depth / self.release.steps
         if j < self.release.steps:
             return Command(dz=dz)
@@ -158,6 +167,35 @@ class ReleaseSchedule:
             if self.weight == 0:
                 return None  # nothing to put down: the plate carries nothing once the block is off the floor
         return self._put_down(state, report)
+
+    def _pad_lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
+        """The next rise of a frictional pad: to the pad load ``max(N - N_0 /
+        steps, q N)`` (uniform steps of the loaded pad load ``N_0`` while it is
+        large, geometric ones of ratio ``q`` towards zero, ``q`` taking
+        ``steps`` down to ``GRIP_FLOOR`` times the weight), then past the
+        zero; the height step is predicted by the secant of the pad load
+        against its height.  Once every pad contact is open, one settle step
+        (``Command()``) and the end."""
+        h = float(state.upper_translation[2])
+        load = self.loaded_pad if report is None else -float(report.upper_force[2])
+        if report is not None and np.linalg.norm(report.upper_force) <= 0.1 * SETTLE_FORCE * self.weight:
+            if self.lifted_off:
+                return None
+            self.lifted_off = True
+            return Command()
+        self.pad_points.append((h, load))
+        slope = self.loaded_pad / self.depth  # -dN/dh of the press, N/m
+        if len(self.pad_points) >= 2:
+            (h1, n1), (h2, n2) = self.pad_points[-2:]
+            if h2 != h1 and (n1 - n2) / (h2 - h1) > 0:
+                slope = (n1 - n2) / (h2 - h1)
+        steps, n0 = self.release.steps, self.loaded_pad
+        floor = min(0.5, GRIP_FLOOR * self.weight / n0)
+        if load <= floor * n0 * (1 + 1e-9):
+            return Command(dz=2.0 * load / slope)  # past the zero: every pad contact opens
+        q = floor ** (1.0 / max(steps - 1, 1))
+        target = max(load - n0 / steps, q * load, floor * n0)
+        return Command(dz=(load - target) / slope)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
         """The next step of the secant search for the height where the plate
@@ -272,10 +310,11 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     is accepted when it is in equilibrium by the same absolute measure as the
     state."""
     scale = schedule.force_scale
-    held = schedule.release.mode == "lift"
+    held = schedule.release.mode == "lift" and model.pad is None
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
     _, further = step(model, state, Command())
-    _, further_imbalance = _balance(model, further.displacement, further.reaction_local, held, further.upper_force)
+    _, further_imbalance = _balance(model, further.displacement,
+                                    np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
     motion = float(np.abs(further.displacement - state.displacement).max())
     if not np.isfinite(motion) or further_imbalance > SETTLE_FORCE * scale:
         motion = np.inf
@@ -306,7 +345,7 @@ def _balance(model: Model, U: np.ndarray, reaction: np.ndarray, held: bool, uppe
     f = f_int.reshape(-1, 3)
     if model.body_force is not None:
         f = f - model.body_force.reshape(-1, 3)
-    f[model.mesh.lower] -= reaction @ model.frame
+    np.subtract.at(f, model.contacts.nodes, model.contacts.to_world(reaction))
     pad = f[model.mesh.upper].sum(axis=0) if held else np.asarray(upper_force, dtype=float)
     if held:
         f[model.mesh.upper] = 0.0
