@@ -13,7 +13,7 @@ from pushplan.config.files import read_toml
 REST_FORCE_RTOL = 1e-8  # issue: in-plane contact forces at rest <= 1e-8 of the weight
 REST_POSE_RTOL = 1e-6  # issue: lift rest pose = commanded motion to 1e-6 of the lag
 REST_KEYS = {"mode", "lower_centroid", "lower_yaw_deg", "upper_centroid", "normal_force", "tangential_force",
-             "strain_energy", "status", "step", "reason", "pad_force", "further_motion"}
+             "strain_energy", "status", "step", "reason", "pad_force", "further_motion", "gripper_friction"}
 
 RUBBER = """
 name = "rubber"
@@ -68,6 +68,13 @@ BAD = {
     "zero steps": (("steps = 4", "steps = 0"), "release.steps"),
     "unknown mode": (('mode = "open"', 'mode = "drop"'), "release.mode"),
     "release without a press": (("dz = -4e-4", "dz = 0.0"), "release.mode"),
+    "negative pad friction": (("[release]", "[gripper]\nfriction = -0.1\n[release]"), "gripper.friction"),
+    "pad friction word": (("[release]", "[gripper]\nfriction = \"sticky\"\n[release]"), "gripper.friction"),
+    "negative pad mu_y": (("[release]", "[gripper.friction]\nmu_x = 1.0\nmu_y = -1.0\n[release]"),
+                          "gripper.friction.mu_y"),
+    "frictional pad, open": (("[release]", "[gripper]\nfriction = 1.0\n[release]"), "gripper.friction"),
+    "frictional pad, compliant": (("[release]", "[gripper]\nfriction = 1.0\nstiffness_xy = 4e4\n"
+                                                "stiffness_yaw = 5.0\n[release]"), "gripper.friction"),
 }
 
 
@@ -125,3 +132,20 @@ def test_a_block_that_does_not_settle_exits_3(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and "did not settle" in err[0] and "one more step moves" in err[0], err
     rest = json.loads((out / "summary.json").read_text())["rest"]
     assert rest["status"] == "not_settled" and "one more step moves" in rest["reason"]
+
+
+def test_a_frictional_pad_round_trips_and_its_rest_says_so(tmp_path):
+    """``[gripper] friction``: the pad's friction is in the scenario, and the rest
+    pose in summary.json says which gripper friction it assumes."""
+    text = RUBBER.replace('mode = "open"', 'mode = "lift"').replace("repeat = 3", "repeat = 1") + \
+        "[gripper.friction]\nmu_x = 0.9\nmu_y = 0.3\nangle_deg = 10.0\n"
+    (tmp_path / "s.toml").write_text(text)
+    s = parse_scenario(read_toml(tmp_path / "s.toml"))
+    assert s.pad.mu_x == 0.9 and s.gripper is None and parse_scenario(s.to_dict()) == s
+    summary = simulate(tmp_path, text)
+    rest = summary["rest"]
+    assert rest["status"] == "settled" and rest["pad_force"] <= 1e-9 * 1000.0 * 9.81 * 0.04 * 0.03 * 0.02
+    assert rest["gripper_friction"] == pytest.approx({"mu_x": 0.9, "mu_y": 0.3, "angle_deg": 10.0})
+    assert summary["scenario"]["gripper"]["friction"] == rest["gripper_friction"]
+    bonded = simulate(tmp_path, RUBBER, name="b")
+    assert bonded["rest"]["gripper_friction"] == "bonded"

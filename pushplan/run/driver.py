@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, rest_check, step
 
+from ..config.scenario import pad_friction_dict
 from ..errors import InputError
 from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
 
@@ -130,7 +131,8 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
             run.summary.status = RunStatus.COMPLETED
             if release is not None and run.reports:
                 rest = rest_check(model, run.state, run.reports[-1], schedule[0], step)
-                run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest)
+                run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
+                                                           pad_friction_dict(model.pad))
         run.summary.elapsed_s = time.perf_counter() - t0
         _call(observers, "finish", run)
     finally:

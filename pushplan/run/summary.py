@@ -188,19 +188,21 @@ class RestSummary:
     reason: str = ""
     pad_force: float = 0.0
     further_motion: float = 0.0
+    gripper_friction: str | dict = "bonded"
+    """The pad's friction the rest pose assumes: "bonded" or {mu_x, mu_y, angle_deg}."""
 
     @property
     def settled(self) -> bool:
         return self.status == "settled"
 
     @classmethod
-    def from_report(cls, report: StepReport, mode: str, rest: Rest) -> RestSummary:
+    def from_report(cls, report: StepReport, mode: str, rest: Rest, gripper_friction="bonded") -> RestSummary:
         return cls(mode=mode, step=report.step_index, lower_centroid=_floats(report.lower_centroid),
                    lower_yaw=float(report.lower_yaw),
                    upper_centroid=_floats(report.upper_centroid), normal_force=float(report.normal_force),
                    tangential_force=_floats(report.tangential_force), strain_energy=float(report.strain_energy),
                    status=rest.status, reason=rest.reason, pad_force=rest.pad_force,
-                   further_motion=rest.further_motion)
+                   further_motion=rest.further_motion, gripper_friction=gripper_friction)
 
     @property
     def lower_yaw_deg(self) -> float:
@@ -211,7 +213,7 @@ class RestSummary:
                 "upper_centroid": list(self.upper_centroid), "normal_force": self.normal_force,
                 "tangential_force": list(self.tangential_force), "strain_energy": self.strain_energy,
                 "status": self.status, "step": self.step, "reason": self.reason, "pad_force": self.pad_force,
-                "further_motion": self.further_motion}
+                "further_motion": self.further_motion, "gripper_friction": self.gripper_friction}
 
     @classmethod
     def from_dict(cls, d: dict) -> RestSummary:
@@ -220,7 +222,8 @@ class RestSummary:
                    normal_force=float(d["normal_force"]), tangential_force=_floats(d["tangential_force"]),
                    strain_energy=float(d["strain_energy"]), status=d["status"], step=d.get("step"),
                    reason=d.get("reason", ""), pad_force=float(d.get("pad_force", 0.0)),
-                   further_motion=float(d.get("further_motion", 0.0)))
+                   further_motion=float(d.get("further_motion", 0.0)),
+                   gripper_friction=d.get("gripper_friction", "bonded"))
 
 
 @dataclass
