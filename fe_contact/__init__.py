@@ -11,8 +11,10 @@ Public API::
     state, reports = run_release(model, state, Release("lift", 5), step, report)
 
 Beyond the paper: ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
-``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper, and
-:mod:`fe_contact.stepping.release` lets go of the block (``lift`` or ``open``).
+``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper,
+``Model(..., pad=Friction(...))`` a frictional gripper pad (a second contact body,
+:mod:`fe_contact.contact.bodies`), and :mod:`fe_contact.stepping.release` lets go of
+the block (``lift`` or ``open``) and says whether it settled (``release_to_rest``).
 
 Layers, lowest first (a subpackage imports only from those before it)::
 
