@@ -121,6 +121,8 @@ class ReleaseSchedule:
         if self.pad and (release.mode != "lift" or model.material.density <= 0):
             raise ValueError("a frictional pad lets go by lifting (mode 'lift') a block with weight (material "
                              "density > 0): without weight nothing holds the block once the pad's load is zero")
+        if self.pad and loaded is None:
+            raise ValueError("a frictional pad's release needs the loaded step's report (loaded=...)")
         if release.mode == "lift" and self.depth == 0:
             raise ValueError("a lift release needs a press before it (the upper face's height must be below "
                              f"its reference one, got {float(state.upper_translation[2])} m)")
@@ -177,8 +179,9 @@ class ReleaseSchedule:
         against its height.  Once every pad contact is open, one settle step
         (``Command()``) and the end."""
         h = float(state.upper_translation[2])
+        pad_force = np.abs(self.loaded_pad) if report is None else np.linalg.norm(report.upper_force)
         load = self.loaded_pad if report is None else -float(report.upper_force[2])
-        if report is not None and np.linalg.norm(report.upper_force) <= 0.1 * SETTLE_FORCE * self.weight:
+        if pad_force <= 0.1 * SETTLE_FORCE * self.weight:
             if self.lifted_off:
                 return None
             self.lifted_off = True
