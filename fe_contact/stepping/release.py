@@ -8,9 +8,9 @@ upper face's cumulative vertical translation), then further increments of
 contacts open and its elastic lag springs back.  A block with weight is then
 put down again to the height where the plate carries nothing: the plate's
 vertical force ``F(h) = W - N(h)`` (N, ``N`` the floor's normal force at
-plate height ``h``) is brought to zero by secant steps started from the
-column's own-weight compression ``h_0 = -W H / (2 E A)`` (m) and slope
-``E A / H``; the lift stops when ``|F| <= SETTLE_FORCE / 10`` times the
+plate height ``h``) is brought to zero by regula falsi (bisection when it
+stalls) started from the column's own-weight compression ``h_0 = -W H / (2
+E A)`` (m); the lift stops when ``|F| <= SETTLE_FORCE / 10`` times the
 weight.  (Stopping at the original height would leave the block hanging
 half on the plate: the weight's compression is smaller than one lift step.)
 These are ordinary load steps.
@@ -132,7 +132,7 @@ class ReleaseSchedule:
         lx, ly, lz = model.mesh.size
         self.axial_stiffness = model.material.young * lx * ly / lz  # E A / H, N/m
         self.lifted_off = False
-        self.contact_points: list[tuple[float, float]] = []  # (plate height m, plate force N) putting down
+        self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
         self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
         if self.pad:
             self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
@@ -201,22 +201,32 @@ class ReleaseSchedule:
         return Command(dz=(load - target) / slope)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
-        """The next step of the secant search for the height where the plate
-        carries nothing (see the module docstring)."""
+        """The next step of the search for the height where the plate carries
+        nothing (see the module docstring): regula falsi on the bracket of the
+        lowest height where it pulls (``F > 0``; off the floor ``F = W``) and
+        the highest where it pushes, bisecting when a step does not halve
+        ``|F|``; below the first bracket, the own-weight compression."""
         h, force = float(state.upper_translation[2]), float(report.upper_force[2])
         if abs(force) <= 0.1 * SETTLE_FORCE * self.weight and np.linalg.norm(report.upper_force) <= \
                 SETTLE_FORCE * self.weight:
             return None
-        if report.normal_force <= LIFT_TOL * self.weight:  # off the floor: down to the own-weight compression
-            self.contact_points.clear()
-            return Command(dz=-self.weight / (2.0 * self.axial_stiffness) - h)
-        self.contact_points.append((h, force))
-        slope = self.axial_stiffness
-        if len(self.contact_points) >= 2:
-            (h1, f1), (h2, f2) = self.contact_points[-2:]
-            if h2 != h1 and (f2 - f1) / (h2 - h1) > 0:
-                slope = (f2 - f1) / (h2 - h1)
-        return Command(dz=-force / slope)
+        points, touching = self.contact_points, report.normal_force > LIFT_TOL * self.weight
+        slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
+        points.append((h, force, touching))
+        pulls = [(hh, f) for hh, f, _ in points if f > 0]
+        pushes = [(hh, f) for hh, f, _ in points if f < 0]
+        if not pushes:  # not down to the floor's load yet
+            target = min(-self.weight / (2.0 * self.axial_stiffness), h - self.weight / self.axial_stiffness)
+            return Command(dz=target - h)
+        (h_hi, f_hi), (h_lo, f_lo) = min(pulls), max(pushes)
+        if slow:
+            target = 0.5 * (h_lo + h_hi)
+        elif f_hi >= self.weight * (1.0 - LIFT_TOL):  # off the floor up there: F is flat, step with E A / H
+            target = h_lo - f_lo / self.axial_stiffness
+            target = target if target < h_hi else 0.5 * (h_lo + h_hi)
+        else:
+            target = h_lo - f_lo * (h_hi - h_lo) / (f_hi - f_lo)
+        return Command(dz=target - h)
 
 
 def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
