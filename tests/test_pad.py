@@ -30,12 +30,13 @@ def model(ratio, beta=1e-2, tol=1e-10, density=1000.0):
 
 
 @functools.lru_cache(maxsize=None)
-def released(ratio, steps=8, beta=1e-2, tol=1e-10):
+def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0):
     """Loaded report, release reports and Rest of a press, 2 pushes and a lift of ``steps``."""
     m = model(ratio, beta, tol)
     state, reports = run(m, [Command(dz=-4e-4), PUSH, PUSH])
     assert all(r.converged for r in reports), reports[-1].message
-    _, release, rest = release_to_rest(m, state, Release("lift", steps, max_steps=1000), step, reports[-1])
+    _, release, rest = release_to_rest(m, state, Release("lift", steps, max_steps=1000, height=height), step,
+                                       reports[-1])
     return reports[-1], release, rest, m
 
 
@@ -57,6 +58,15 @@ def test_pad_release_settles_on_the_floor():
     assert last.normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
     assert loaded.upper_force[2] < -10 * m.weight  # the pad pressed
     assert max(r.newton_iterations for r in reports) <= 15
+
+
+def test_the_gripper_rising_further_changes_nothing():
+    """``Release.height``: once every pad contact is open, the robot's further
+    motion (here to 2 mm above the reference) leaves the block where it is."""
+    _, reports, rest, _ = released(1.0, height=2e-3)
+    assert rest.settled and reports[-2].command.dz > 0 and reports[-1].command == Command()  # rise, settle
+    assert np.abs(reports[-1].upper_force).max() <= 1e-20  # the pad is open
+    np.testing.assert_allclose(rest_xy(1.0, height=2e-3), rest_xy(1.0), rtol=0, atol=1e-9 * lag(1.0))
 
 
 @pytest.mark.parametrize("change", [dict(beta=1e-3), dict(tol=1e-11)])

@@ -68,6 +68,7 @@ BAD = {
     "zero steps": (("steps = 4", "steps = 0"), "release.steps"),
     "unknown mode": (('mode = "open"', 'mode = "drop"'), "release.mode"),
     "release without a press": (("dz = -4e-4", "dz = 0.0"), "release.mode"),
+    "negative lift height": (('mode = "open"', 'mode = "lift"\nheight = -1e-3'), "release.height"),
     "negative pad friction": (("[release]", "[gripper]\nfriction = -0.1\n[release]"), "gripper.friction"),
     "pad friction word": (("[release]", "[gripper]\nfriction = \"sticky\"\n[release]"), "gripper.friction"),
     "negative pad mu_y": (("[release]", "[gripper.friction]\nmu_x = 1.0\nmu_y = -1.0\n[release]"),

@@ -85,12 +85,18 @@ class Release:
         dofs) is at most this fraction of the weight.
     max_steps : int
         Limit on the release's steps in all (ramp, extra lift, settle).
+    height : float
+        ``lift``: height above its reference pose the gripper rises to once it
+        has let go (m, >= 0): the robot's motion, which changes nothing once
+        the pad is open; a bonded pad with weight ends where it carries
+        nothing (it cannot rise without lifting the block).
     """
 
     mode: str
     steps: int
     settle_tol: float = 1e-10
     max_steps: int = 200
+    height: float = 0.0
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -101,6 +107,8 @@ class Release:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
         if not 0 < self.settle_tol < 1:
             raise ValueError(f"settle_tol must be in (0, 1), got {self.settle_tol}")
+        if not (np.isfinite(self.height) and self.height >= 0):
+            raise ValueError(f"height must be >= 0 m, got {self.height}")
 
 
 class ReleaseSchedule:
@@ -130,6 +138,8 @@ class ReleaseSchedule:
         if release.mode == "open":
             self.grips = open_grips(release.steps, self.weight, self.loaded_normal)
         lx, ly, lz = model.mesh.size
+        self.size = max(lx, ly, lz)
+        self.risen = False
         self.axial_stiffness = model.material.young * lx * ly / lz  # E A / H, N/m
         self.lifted_off = False
         self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
@@ -167,8 +177,21 @@ class ReleaseSchedule:
                 return Command(dz=dz)
             self.lifted_off = True
             if self.weight == 0:
-                return None  # nothing to put down: the plate carries nothing once the block is off the floor
+                return self._rise(state)  # nothing to put down: the plate carries nothing off the floor
         return self._put_down(state, report)
+
+    def _rise(self, state: State) -> Command | None:
+        """Up to ``Release.height`` once the gripper has let go, one settle step
+        (the rise's predictor stretches the block: its force scale is the
+        stretch's), then the end."""
+        dz = self.release.height - float(state.upper_translation[2])
+        if dz > SETTLE_MOTION * self.size:
+            self.risen = True
+            return Command(dz=dz)
+        if self.risen:
+            self.risen = False
+            return Command()
+        return None
 
     def _pad_lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
         """The next rise of a frictional pad: to the pad load ``max(N - N_0 /
@@ -183,7 +206,7 @@ class ReleaseSchedule:
         load = self.loaded_pad if report is None else -float(report.upper_force[2])
         if pad_force <= 0.1 * SETTLE_FORCE * self.weight:
             if self.lifted_off:
-                return None
+                return self._rise(state)
             self.lifted_off = True
             return Command()
         self.pad_points.append((h, load))

@@ -37,6 +37,8 @@ A scenario reads::
                                               # "open" (bonded pad only: every upper-face traction to zero,
                                               # through a pad stiffness and schedule; needs density > 0)
     steps = 16                                # increments (>= 1; default 16)
+    height = 0.0                              # lift: the gripper rises to this height (m, >= 0) once
+                                              # it has let go
 
 Unknown keys and invalid values raise :class:`~pushplan.errors.InputError` naming the
 key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other commands
@@ -138,6 +140,8 @@ class Scenario:
             optional.setdefault("gripper", {})["friction"] = pad_friction_dict(self.pad)
         if self.release is not None:
             optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
+            if self.release.height:
+                optional["release"]["height"] = self.release.height
         return {
             "name": self.name,
             "description": self.description,
@@ -242,7 +246,7 @@ def pad_friction_dict(pad: Friction | None):
 def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Friction | None) -> Release | None:
     if "release" not in top:
         return None
-    t = top.table("release", {"mode", "steps"}, required={"mode"})
+    t = top.table("release", {"mode", "steps", "height"}, required={"mode"})
     mode = t.choice("mode", RELEASE_MODES)
     if pad is not None and (mode != "lift" or density <= 0):
         raise InputError(f"release.mode = {mode!r} with a frictional pad (gripper.friction) must be \"lift\" of a "
@@ -254,7 +258,10 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     if depth >= 0:
         raise InputError(f"release.mode = {mode!r} needs a press before it: the loads' dz must sum to < 0 m, "
                          f"got {depth:g}")
-    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS))
+    height = t.number("height", 0.0, nonneg=True)
+    if height > 0 and mode != "lift":
+        raise InputError(f"release.height = {height} is the height a lift rises to: it needs release.mode = \"lift\"")
+    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height)
 
 
 def _commands(loads) -> tuple[Command, ...]:
