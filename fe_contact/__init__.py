@@ -11,8 +11,10 @@ Public API::
     state, reports = run_release(model, state, Release("lift", 5), step, report)
 
 Beyond the paper: ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
-``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper, and
-:mod:`fe_contact.stepping.release` lets go of the block (``lift`` or ``open``).
+``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper,
+``Model(..., pad=Friction(...))`` a frictional gripper pad (a second contact body,
+:mod:`fe_contact.contact.bodies`), and :mod:`fe_contact.stepping.release` lets go of
+the block (``lift`` or ``open``) and says whether it settled (``release_to_rest``).
 
 Layers, lowest first (a subpackage imports only from those before it)::
 
@@ -48,7 +50,7 @@ from .stepping.model import (
     build_model,
     initial_state,
 )
-from .stepping.release import Release, ReleaseSchedule, run_release
+from .stepping.release import Release, ReleaseSchedule, Rest, release_to_rest, rest_check, run_release
 from .stepping.step import run, step
 from .stepping.warmup import warm_up
 from .linalg.threads import limit_blas_threads
@@ -67,6 +69,7 @@ __all__ = [
     "NodeStatus",
     "Release",
     "ReleaseSchedule",
+    "Rest",
     "SolverOptions",
     "State",
     "Status",
@@ -76,6 +79,8 @@ __all__ = [
     "build_model",
     "initial_state",
     "project_elliptic_cone",
+    "release_to_rest",
+    "rest_check",
     "run",
     "run_release",
     "solve_local",

@@ -54,6 +54,7 @@ def test_plan_to_rest_with_open_release_and_reproduce(tmp_path):
     rc, doc = plan(tmp_path, PLAN)
     assert rc == 0 and doc["status"] == "converged"
     assert doc["plan"]["target_state"] == "rest" and doc["release"]["mode"] == "open"
+    assert doc["release"]["gripper_friction"] == "bonded"
     rest, naive_rest = doc["final_poses"]["rest"], doc["naive"]["final_poses"]["rest"]
     assert rest["error"]["position"] <= 1e-5 and rest["error"] == doc["final_error"]
     assert naive_rest["error"] == doc["naive"]["final_error"]

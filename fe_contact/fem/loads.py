@@ -132,6 +132,12 @@ class Loading:
         Tangents with the geometric stiffness of the tensile stresses only
         (:func:`~fe_contact.fem.elasticity.internal_force_and_tangent`): positive
         definite with the springs, for a free prestressed block.
+    proximal : bool
+        The springs are anchored at each Newton iterate (the step's loop moves
+        ``anchor`` to it, :func:`fe_contact.stepping.newton.equilibrium`): they
+        stiffen the tangent (a proximal-point, Levenberg-Marquardt damping of
+        the correction) and exert no force at an iterate, so a converged step
+        solves the unregularised problem, whatever their stiffness.
     """
 
     external: np.ndarray | None = None
@@ -139,6 +145,7 @@ class Loading:
     anchor: np.ndarray | None = None
     diagonal: np.ndarray | None = None
     tension_only_geometric: bool = False
+    proximal: bool = False
 
     def force(self, f_int: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Internal minus applied force (n_dofs,), N, at displacements ``U`` (n_nodes, 3)."""

@@ -24,15 +24,58 @@ def held_step(model: Model, state: State, command: Command, translation: np.ndar
     at pose ``(translation, rotation)`` (the rigid drive; the compliant
     gripper's trial poses)."""
     U = predictor(model, state, command)
-    U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
-    loading = held_loading(model)
-    eq = equilibrium(model, state, U, local_problem_hook, consume, loading)
+    if model.pad is None:
+        U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
+        loading, gripper = held_loading(model), None
+    else:
+        loading, gripper = pad_loading(model, state), (translation, pad_motion(model, state, translation, rotation))
+    eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper)
     return eq, measure(model, state, command, eq, t0, loading, extra)
 
 
 def held_loading(model: Model) -> Loading:
     """The applied loads of a held step: the self-weight, if any."""
     return NO_LOADING if model.body_force is None else Loading(external=model.body_force)
+
+
+def pad_loading(model: Model, state: State) -> Loading:
+    """The loads of a step with a frictional pad: the self-weight and
+    proximal springs on every dof,
+
+        K_reg = k_a I,    k_a = beta k_shear V_a / V,    N/m,
+
+    ``beta = SolverOptions.pad_regularisation``, ``k_shear = G A / H``, ``V_a``
+    the nodal volume.  Held by two frictional planes, the free block's
+    stiffness is singular in its rigid modes and the flexibility matrix needs
+    them regularised; the springs are anchored at each Newton iterate
+    (``Loading.proximal``), so they damp the corrections and exert no force
+    at convergence: the converged step solves the unregularised problem
+    (tested: the answer does not move when ``beta`` is divided by 10).  The
+    tangent keeps the geometric stiffness of the tensile stresses only
+    (positive definite: a compressed free block's consistent tangent is
+    indefinite in its rigid rotations)."""
+    k = model.options.pad_regularisation * model.shear_stiffness * model.nodal_volume / model.nodal_volume.sum()
+    return Loading(external=model.body_force, spring=np.repeat(k, 3),
+                   anchor=np.array(state.displacement, dtype=float).ravel(), diagonal=model.diagonal,
+                   tension_only_geometric=True, proximal=True)
+
+
+def pad_motion(model: Model, state: State, translation: np.ndarray, rotation: float) -> np.ndarray:
+    """Increment over the step of the pad's point at each contact node
+    (n_contacts, 3), m: the rigid motion of the pad from the state's pose to
+    ``(translation, rotation)`` (rotation about the pad's centre, as
+    :func:`~fe_contact.stepping.predictor.upper_face_displacement`); zero for
+    the floor's contacts."""
+    nodes, n_lower = model.contacts.nodes, model.n_lower
+    x = model.mesh.nodes[nodes[n_lower:]] + state.displacement[nodes[n_lower:]]
+    centre = model.upper_centre + state.upper_translation
+    dtheta = rotation - state.upper_rotation
+    c, s = np.cos(dtheta), np.sin(dtheta)
+    rel = x - centre
+    moved = np.column_stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1], rel[:, 2]])
+    motion = np.zeros((nodes.size, 3))
+    motion[n_lower:] = moved - rel + (translation - state.upper_translation)
+    return motion
 
 
 def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation: float,

@@ -8,7 +8,8 @@ displacement increment over the step, m (world x, y):
     gap          g_i = Z_i + u_z                          (m)
     dissipation  D = - sum_i r_t,i . (T_t du_i)           (J, >= 0 for a dissipative law)
     equilibrium  |sum_i T^T r_i + f_upper + W - f_reg| / force scale
-                 (f_upper the gripper's force on the upper face, W the weight
+                 (f_upper the gripper's force on the upper face: the drive's
+                 reaction, or a frictional pad's contact forces; W the weight
                  vector, f_reg the total regularising spring force, N)
     strain energy  int (lambda/2 tr(E)^2 + mu E:E) dV     (J)
 
@@ -58,7 +59,9 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     ``gripper_force``, ``plate``, ``grip``)."""
     extra = dict(extra or {})
     mesh, lower, T = model.mesh, model.mesh.lower, model.frame
-    U, r = eq.displacement, eq.reaction
+    U, n_lower = eq.displacement, model.n_lower
+    r = eq.reaction[:n_lower]  # the floor's; a frictional pad's follow
+    pad_world = model.contacts.to_world(eq.reaction)[n_lower:]
     contact_world = r @ T
     slip_inc = U[lower, :2] - state.displacement[lower, :2]
     du_local = slip_inc @ T[1:, :2].T  # (n_lower, 2) in (t_x, t_y)
@@ -67,6 +70,9 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     X_lower = mesh.nodes[lower]
     f_int = eq.internal_force
     upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+    if model.pad is not None:
+        upper_force = pad_world.sum(axis=0)
+        extra.setdefault("gripper_force", plate_wrench(model, U, pad_world))
     upper_force = extra.pop("upper_force", upper_force)
     total_contact = contact_world.sum(axis=0)
     force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
@@ -117,6 +123,7 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         weight=model.weight,
         grip=extra.pop("grip", state.grip),
         regularisation_force=float(np.linalg.norm(spring_f)),
+        pad_reaction=eq.reaction[n_lower:],
     )
 
 

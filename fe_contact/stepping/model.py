@@ -22,6 +22,7 @@ from ..linalg.cholesky import SupernodalStructure, supernodal_structure
 from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_volumes
 from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
 
+from ..contact.bodies import ContactBody, ContactSet, horizontal_frame, stack_bodies
 from ..contact.local_solver import METHODS as LOCAL_METHODS
 from .report import IterLog, NodeStatus, Status, StepReport  # noqa: F401  (re-exported)
 
@@ -101,6 +102,10 @@ class SolverOptions:
         ``beta`` of the regularising springs of an open release, as a fraction
         of the block's shear stiffness (:mod:`fe_contact.fem.loads`); smaller is
         closer to the quasi-static limit and needs more settle steps.
+    pad_regularisation : float
+        ``beta`` of the regularising springs of a block between the floor and
+        a frictional pad (:func:`fe_contact.stepping.held.pad_loading`), as a
+        fraction of its shear stiffness; the answer converges as it goes to 0.
     """
 
     local_method: str = "newton"
@@ -111,6 +116,7 @@ class SolverOptions:
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
     release_stiffness: float = 0.1
+    pad_regularisation: float = 1e-2
 
     def __post_init__(self):
         if self.local_method not in LOCAL_METHODS:
@@ -124,8 +130,9 @@ class SolverOptions:
         v = _finite("refresh_ratio", self.refresh_ratio)
         if not 0 < v < 1:
             raise ValueError(f"refresh_ratio must be in (0, 1), got {v}")
-        if not _finite("release_stiffness", self.release_stiffness) > 0:
-            raise ValueError(f"release_stiffness must be > 0, got {self.release_stiffness}")
+        for name in ("release_stiffness", "pad_regularisation"):
+            if not _finite(name, getattr(self, name)) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         for name in ("local_max_iter", "newton_max_iter"):
             v = getattr(self, name)
             if v is None and name == "local_max_iter":
@@ -142,8 +149,7 @@ def local_frame(angle: float) -> np.ndarray:
     T : ndarray, shape (3, 3)
         ``v_local = T @ v_world``; rows are ``n = e_z``, ``t_x``, ``t_y``.
     """
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[0.0, 0.0, 1.0], [c, s, 0.0], [-s, c, 0.0]])
+    return horizontal_frame(True, angle)
 
 
 @dataclass(frozen=True)
@@ -162,6 +168,15 @@ class Model:
     gripper: Gripper = field(default_factory=Gripper)
     hold_upper: bool = True
     """False: the upper face is free (a released block), every dof is free."""
+    pad: Friction | None = None
+    """Friction of the gripper pad on the upper face, a rigid plane in
+    unilateral frictional contact with it (:mod:`fe_contact.contact.bodies`);
+    None (default): the pad is bonded to the upper face (the paper's
+    displacement control)."""
+    contacts: ContactSet = field(init=False, repr=False)
+    """Every contact body's contacts (the floor's first, then the pad's)."""
+    contact_dofs: np.ndarray = field(init=False, repr=False)
+    """(n_contacts, 3) world x, y, z dofs of the contact nodes, in ``contacts`` order."""
     geometry: ElementGeometry = field(init=False, repr=False)
     pattern: SparsityPattern = field(init=False, repr=False)
     free_dofs: np.ndarray = field(init=False, repr=False)
@@ -197,6 +212,10 @@ class Model:
             raise ValueError(f"friction must be a Friction, got {type(self.friction).__name__}")
         if not isinstance(self.gripper, Gripper):
             raise ValueError(f"gripper must be a Gripper, got {type(self.gripper).__name__}")
+        if self.pad is not None and not isinstance(self.pad, Friction):
+            raise ValueError(f"pad must be a Friction or None (bonded), got {type(self.pad).__name__}")
+        if self.pad is not None and not self.gripper.rigid:
+            raise ValueError("a frictional pad is driven by a rigid gripper: gripper stiffness must be inf")
         if self.quadrature not in (2, 3):
             # one point per element leaves the hex8 hourglass modes without
             # stiffness: K_ff is singular and the flexibility matrix meaningless
@@ -209,7 +228,7 @@ class Model:
         set_(self, "geometry", element_geometry(mesh, self.quadrature))
         set_(self, "pattern", sparsity_pattern(mesh.elements, mesh.n_nodes))
         upper_dofs = (3 * mesh.upper[:, None] + np.arange(3)).ravel()
-        if not self.hold_upper:
+        if not self.hold_upper or self.pad is not None:
             upper_dofs = upper_dofs[:0]
         mask = np.ones(mesh.n_dofs, dtype=bool)
         mask[upper_dofs] = False
@@ -217,6 +236,8 @@ class Model:
         set_(self, "free_dofs", np.flatnonzero(mask))
         set_(self, "lower_dofs", 3 * mesh.lower[:, None] + np.arange(3))
         set_(self, "frame", local_frame(self.friction.angle))
+        set_(self, "contacts", stack_bodies(self._bodies()))
+        set_(self, "contact_dofs", 3 * self.contacts.nodes[:, None] + np.arange(3))
         set_(self, "lower_area", face_tributary_areas(mesh, mesh.lower))
         set_(self, "upper_area", face_tributary_areas(mesh, mesh.upper))
         set_(self, "nodal_volume", nodal_volumes(mesh.elements, self.geometry.dvol, mesh.n_nodes,
@@ -229,13 +250,24 @@ class Model:
             set_(self, "factor_structure", None)
         else:
             is_contact = np.zeros(mesh.n_dofs, dtype=bool)
-            is_contact[self.lower_dofs] = True
+            is_contact[self.contact_dofs] = True
             interior = mask & ~is_contact
             dof_parts = [(3 * nodes[:, None] + np.arange(3)).ravel() for nodes in parts]
             set_(self, "factor_structure", supernodal_structure(
                 self.pattern.indptr, self.pattern.indices, self.free_dofs,
-                [d[interior[d]] for d in dof_parts], self.lower_dofs.ravel(),
+                [d[interior[d]] for d in dof_parts], self.contact_dofs.ravel(),
             ))
+
+    def _bodies(self) -> tuple[ContactBody, ...]:
+        """The floor (plane z = 0, normal up) and, if frictional, the pad (the
+        plane of the upper face, normal down, moving with the gripper)."""
+        f = self.friction
+        floor = ContactBody("floor", self.mesh.lower, self.frame, np.zeros(3), f.mu_x, f.mu_y)
+        if self.pad is None:
+            return (floor,)
+        top = float(self.mesh.nodes[self.mesh.upper, 2].max())
+        return floor, ContactBody("pad", self.mesh.upper, horizontal_frame(False, self.pad.angle),
+                                  np.array([0.0, 0.0, top]), self.pad.mu_x, self.pad.mu_y, moves_with_gripper=True)
 
     def released(self) -> "Model":
         """This model with the upper face free (``hold_upper=False``), built once."""
@@ -244,6 +276,15 @@ class Model:
             cache = self if not self.hold_upper else replace(self, hold_upper=False)
             object.__setattr__(self, "_released", cache)
         return cache
+
+    @property
+    def reuses_tangent(self) -> bool:
+        """Modified Newton (``SolverOptions.reuse_tangent``), except with a
+        frictional pad: a tangent kept from the start of a step fails the local
+        contact solve there (measured on a rubber block, pad mu 60: no local
+        method converges at the next step's first iteration), a fresh one per
+        iteration converges in 6-12 (full Newton)."""
+        return self.options.reuse_tangent and self.pad is None
 
     @property
     def weight(self) -> float:
@@ -258,6 +299,12 @@ class Model:
 
     @property
     def n_contacts(self) -> int:
+        """Contact nodes of every body (the floor's, then the pad's)."""
+        return int(self.contacts.nodes.size)
+
+    @property
+    def n_lower(self) -> int:
+        """Contact nodes on the floor (the lower face's)."""
         return int(self.mesh.lower.size)
 
     @property
@@ -368,9 +415,10 @@ class State:
     ----------
     displacement : ndarray, shape (n_nodes, 3)
         Total nodal displacement from the reference configuration, m.
-    reaction : ndarray, shape (n_lower, 3)
-        Contact force on the block at each lower-face node, local frame
-        ``(n, t_x, t_y)``, N.
+    reaction : ndarray, shape (n_contacts, 3)
+        Contact force on the block at each contact node (``model.contacts``
+        order: the lower face's, then a frictional pad's), its body's local
+        frame ``(n, t_x, t_y)``, N.
     upper_translation : ndarray, shape (3,)
         Cumulative translation of the upper face, m.
     upper_rotation : float
@@ -430,10 +478,10 @@ class State:
 
 def initial_state(model: Model) -> State:
     """Undeformed block resting on the plane with zero contact forces."""
-    n_lower = model.n_contacts
+    n_lower = model.n_lower
     return State(
         displacement=np.zeros((model.mesh.n_nodes, 3)),
-        reaction=np.zeros((n_lower, 3)),
+        reaction=np.zeros((model.n_contacts, 3)),
         upper_translation=np.zeros(3),
         upper_rotation=0.0,
         slip_path=np.zeros(n_lower),

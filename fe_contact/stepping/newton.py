@@ -75,17 +75,18 @@ def _timed(timings: dict, phase: str):
 
 
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
-                consume: bool = False, loading: Loading = NO_LOADING) -> Equilibrium:
+                consume: bool = False, loading: Loading = NO_LOADING, gripper=None) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
     the upper face at its commanded pose (``U`` is updated in place).
 
     The tangent cached in ``state`` (if of the same free dofs) is reused when
-    ``SolverOptions.reuse_tangent``; with ``consume`` it is released at a
+    ``Model.reuses_tangent``; with ``consume`` it is released at a
     refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
     (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
-    ``f_int + f_spring - f_applied - f_contact``."""
+    ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
+    ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`."""
     opts = model.options
-    tangent = state.tangent.value if opts.reuse_tangent else None
+    tangent = state.tangent.value if model.reuses_tangent else None
     if tangent is not None and tangent.n_free != model.free_dofs.size:
         tangent = None  # cached before the gripper let go: other free dofs
     workspace = tangent.workspace.copy() if tangent is not None else None
@@ -96,7 +97,9 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     prev_res = rel_res = math.inf
     n_tangents, at_start, scale0, f_int, min_det = 0, False, 0.0, None, math.nan
     for it in range(opts.newton_max_iter + 1):
-        need_tangent = tangent is None or not opts.reuse_tangent
+        need_tangent = tangent is None or not model.reuses_tangent
+        if loading.proximal:
+            loading.anchor[:] = U.ravel()  # the springs damp the correction from here and pull nowhere
         with _timed(timings, "assembly"):
             f_int, K, min_det = _forces(model, state, U, need_tangent, it, loading)
         breakdown = _breakdown(f_int, min_det, it)
@@ -137,9 +140,9 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
             n_tangents += 1
             workspace = tangent.workspace.copy()
         local, dU_free, failure = _contact_correction(model, state, tangent, workspace, U, R, r, it, timings,
-                                                      local_problem_hook)
+                                                      local_problem_hook, gripper)
         if local is not None:
-            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual)))
+            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual), local.method))
         if failure is not None:
             status, message = failure
             break
@@ -147,7 +150,7 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         U_flat[model.free_dofs] += dU_free
         U = U_flat.reshape(-1, 3)
         r = np.array(local.r, dtype=float)
-    cached = tangent.with_workspace(workspace) if opts.reuse_tangent and tangent is not None else None
+    cached = tangent.with_workspace(workspace) if model.reuses_tangent and tangent is not None else None
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
 
@@ -158,7 +161,7 @@ def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: i
     Gauss points."""
     geometry, elements, material = model.geometry, model.mesh.elements, model.material
     K = None
-    if need_tangent and model.options.reuse_tangent and it == 0:
+    if need_tangent and model.reuses_tangent and it == 0:
         # A tangent kept for many iterations is best taken at the converged
         # start of the step, an equilibrium state: a tangent at an iterate
         # can be indefinite (see fe_contact.stepping.tangent.refreshed_tangent).
@@ -181,10 +184,10 @@ def _breakdown(f_int: np.ndarray, min_det: float, it: int) -> tuple[Status, str]
 
 
 def _contact_forces(model: Model, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World force of each contact node (n_lower, 3) and as a force vector (n_dofs,)."""
-    contact_world = r @ model.frame
+    """World force of each contact node (n_contacts, 3) and as a force vector (n_dofs,)."""
+    contact_world = model.contacts.to_world(r)
     f_contact = np.zeros(model.mesh.n_dofs)
-    f_contact[model.lower_dofs.ravel()] = contact_world.ravel()
+    f_contact[model.contact_dofs.ravel()] = contact_world.ravel()
     return contact_world, f_contact
 
 
@@ -215,38 +218,67 @@ def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: n
     return max(float(np.linalg.norm((f_int - f_contact)[model.free_dofs])), model.weight)
 
 
+FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
+"""The local method a contact solve retries with when the chosen one does not converge."""
+
+
+def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace):
+    """The local contact problem ``u = W r + q`` of an iteration (scaled, see
+    :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
+    warm-started at ``r``; if that does not converge, retried with Newton
+    from zero forces with its proximal regularisation (a warm start far from
+    the solution can stall it: a frictional pad of mu 60 opening), then with
+    :data:`FALLBACK` of the method warm-started (semismooth Newton and the
+    paper's Uzawa fail on different problems).  The solution's ``method`` says
+    which one solved it; if none did, the one with the smallest residual is
+    returned."""
+    opts = model.options
+    best = None
+    attempts = ((opts.local_method, r, True), ("newton", None, False), (FALLBACK[opts.local_method], r, True))
+    for method, start, spd in attempts:
+        local = solve_local(
+            tangent.W_scaled, q_scaled, model.contacts.mu_x, model.contacts.mu_y,
+            method=method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=start,
+            assume_spd=spd,  # K_ff is SPD (with the upper face prescribed, or the springs)
+            workspace=workspace if method == "newton" and spd else None,
+        )
+        if local.converged:
+            return local
+        best = local if best is None or local.residual < best.residual else best
+    return best
+
+
 def _contact_correction(model: Model, state: State, tangent: Tangent, workspace, U, R, r, it: int,
-                        timings: dict, local_problem_hook):
+                        timings: dict, local_problem_hook, gripper=None):
     """Contact solve and displacement update of one Newton iteration.
 
     Returns the :class:`~fe_contact.contact.local_solver.LocalSolution` (None if not
     solved), the update of the free dofs (n_free,), m, and None, or a failure
     ``(status, message)`` instead of the update.
     """
-    T, lower, opts = model.frame, model.mesh.lower, model.options
+    contacts, nodes, opts = model.contacts, model.contacts.nodes, model.options
     with _timed(timings, "solve"):
         dw0, finish_solve = tangent.solve_with_contact(-R)
-        w = U[lower] - state.displacement[lower]
-        w[:, 2] = model.mesh.nodes[lower, 2] + U[lower, 2]  # normal gap, not its increment
-        q_scaled = (w + dw0) @ T.T / tangent.w_mean - (tangent.W_scaled @ r.ravel()).reshape(-1, 3)
+        shift, motion = (np.zeros(3), 0.0) if gripper is None else gripper
+        gap, slip = contacts.kinematics(model.mesh.nodes[nodes] + U[nodes], U[nodes] - state.displacement[nodes],
+                                        motion, shift)
+        w = contacts.to_local(slip + dw0)
+        w[:, 0] = gap + np.einsum("ci,ci->c", contacts.frames[:, 0, :], dw0)  # normal gap, not its increment
+        q_scaled = w / tangent.w_mean - (tangent.W_scaled @ r.ravel()).reshape(-1, 3)
     if not np.all(np.isfinite(q_scaled)):
         return None, None, (Status.NOT_FINITE, f"non-finite contact problem at Newton iteration {it}: "
                                                "the solve with the tangent broke down")
     with _timed(timings, "local"):
-        local = solve_local(
-            tangent.W_scaled, q_scaled, model.friction.mu_x, model.friction.mu_y,
-            method=opts.local_method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=r,
-            assume_spd=True,  # K_ff is SPD with the upper face prescribed
-            workspace=workspace,
-        )
+        local = _solve_contact(model, tangent, q_scaled, r, workspace)
     if local_problem_hook is not None:
         local_problem_hook(tangent.W_scaled, q_scaled, local)
     if not local.converged:
         return local, None, (Status.CONTACT_NOT_CONVERGED,
-                             f"contact ({opts.local_method}) did not converge at Newton iteration {it}: "
-                             f"residual {local.residual:.3g} after {local.iterations} iterations")
+                             f"contact did not converge at Newton iteration {it} with {opts.local_method}, "
+                             f"newton from zero nor {FALLBACK[opts.local_method]}: residual {local.residual:.3g} after "
+                             f"{local.iterations} iterations")
     with _timed(timings, "solve"):
-        dU_free = finish_solve((local.r - r) @ T)
+        dU_free = finish_solve(contacts.to_world(local.r - r))
     if not np.all(np.isfinite(dU_free)):
         return local, None, (Status.NOT_FINITE, f"non-finite displacement update at Newton iteration {it}")
     return local, dU_free, None

@@ -3,9 +3,17 @@
 ``lift``: the gripper keeps its in-plane command and rises: ``steps`` increments
 ``dz = d / steps`` summing to the press depth ``d = -t_z`` (``t_z`` the
 upper face's cumulative vertical translation), then further increments of
-``d / steps`` while the upper face still pushes on the block
-(``upper_force_z < -LIFT_TOL * loaded normal force``).  These are ordinary
-load steps.
+``d / steps`` while the block still touches the floor (normal force above
+``LIFT_TOL`` times the loaded one): the block hangs from the plate, its
+contacts open and its elastic lag springs back.  A block with weight is then
+put down again to the height where the plate carries nothing: the plate's
+vertical force ``F(h) = W - N(h)`` (N, ``N`` the floor's normal force at
+plate height ``h``) is brought to zero by regula falsi (bisection when it
+stalls) started from the column's own-weight compression ``h_0 = -W H / (2
+E A)`` (m); the lift stops when ``|F| <= SETTLE_FORCE / 10`` times the
+weight.  (Stopping at the original height would leave the block hanging
+half on the plate: the weight's compression is smaller than one lift step.)
+These are ordinary load steps.
 
 ``open``: the upper face becomes free (every dof of the block is free) and the
 gripper's hold on it decays to zero.  The hold at grip level ``g`` (1 loaded,
@@ -55,7 +63,12 @@ MODES = ("lift", "open")
 GRIP_FLOOR = 0.1
 """Last grip level of an open release before 0, as a fraction of weight / loaded normal force."""
 LIFT_TOL = 1e-9
-"""Upper-face push, relative to the loaded normal force, below which the plate carries no load."""
+"""Floor normal force, relative to the loaded one, below which a lifted block hangs free of the floor."""
+SETTLE_FORCE = 1e-9
+"""Rest: the plate's force and every node's out-of-balance force at most this fraction of the force scale
+(the weight; the loaded normal force for a block without weight)."""
+SETTLE_MOTION = 1e-9
+"""Rest: one more step moves no node by more than this fraction of the block's largest dimension."""
 
 
 @dataclass(frozen=True)
@@ -72,12 +85,18 @@ class Release:
         dofs) is at most this fraction of the weight.
     max_steps : int
         Limit on the release's steps in all (ramp, extra lift, settle).
+    height : float
+        ``lift``: height above its reference pose the gripper rises to once it
+        has let go (m, >= 0): the robot's motion, which changes nothing once
+        the pad is open; a bonded pad with weight ends where it carries
+        nothing (it cannot rise without lifting the block).
     """
 
     mode: str
     steps: int
     settle_tol: float = 1e-10
     max_steps: int = 200
+    height: float = 0.0
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -88,6 +107,8 @@ class Release:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
         if not 0 < self.settle_tol < 1:
             raise ValueError(f"settle_tol must be in (0, 1), got {self.settle_tol}")
+        if not (np.isfinite(self.height) and self.height >= 0):
+            raise ValueError(f"height must be >= 0 m, got {self.height}")
 
 
 class ReleaseSchedule:
@@ -104,17 +125,40 @@ class ReleaseSchedule:
         self.release = release
         self.weight = model.weight
         self.depth = max(0.0, -float(state.upper_translation[2]))
+        self.pad = model.pad is not None
+        if self.pad and (release.mode != "lift" or model.material.density <= 0):
+            raise ValueError("a frictional pad lets go by lifting (mode 'lift') a block with weight (material "
+                             "density > 0): without weight nothing holds the block once the pad's load is zero")
+        if self.pad and loaded is None:
+            raise ValueError("a frictional pad's release needs the loaded step's report (loaded=...)")
+        if release.mode == "lift" and self.depth == 0:
+            raise ValueError("a lift release needs a press before it (the upper face's height must be below "
+                             f"its reference one, got {float(state.upper_translation[2])} m)")
         self.loaded_normal = abs(loaded.normal_force) if loaded is not None else 0.0
         if release.mode == "open":
             self.grips = open_grips(release.steps, self.weight, self.loaded_normal)
+        lx, ly, lz = model.mesh.size
+        self.size = max(lx, ly, lz)
+        self.risen = False
+        self.axial_stiffness = model.material.young * lx * ly / lz  # E A / H, N/m
+        self.lifted_off = False
+        self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
+        self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
+        if self.pad:
+            self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
         self.taken = 0
+
+    @property
+    def force_scale(self) -> float:
+        """Force scale of the rest criteria, N: the weight, or the loaded normal force without weight."""
+        return self.weight if self.weight > 0 else self.loaded_normal
 
     def next_command(self, state: State, report: StepReport | None) -> Command | None:
         rel, j = self.release, self.taken
         if j >= rel.max_steps or (report is not None and not report.converged):
             return None
         if rel.mode == "lift":
-            command = self._lift(j, report)
+            command = self._lift(j, state, report)
         elif j < rel.steps:
             command = Command(open=self.grips[j] - self.grips[j + 1])
         else:
@@ -122,12 +166,90 @@ class ReleaseSchedule:
         self.taken += command is not None
         return command
 
-    def _lift(self, j: int, report: StepReport | None) -> Command | None:
+    def _lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
+        if self.pad:
+            return self._pad_lift(j, state, report)
         dz = self.depth / self.release.steps
         if j < self.release.steps:
-            return Command(dz=dz) if dz > 0 else None
-        pushing = report is not None and report.upper_force[2] < -LIFT_TOL * self.loaded_normal
-        return Command(dz=dz) if pushing and dz > 0 else None
+            return Command(dz=dz)
+        if not self.lifted_off:
+            if report.normal_force > LIFT_TOL * max(self.loaded_normal, self.weight):
+                return Command(dz=dz)
+            self.lifted_off = True
+            if self.weight == 0:
+                return self._rise(state)  # nothing to put down: the plate carries nothing off the floor
+        return self._put_down(state, report)
+
+    def _rise(self, state: State) -> Command | None:
+        """Up to ``Release.height`` once the gripper has let go, one settle step
+        (the rise's predictor stretches the block: its force scale is the
+        stretch's), then the end."""
+        dz = self.release.height - float(state.upper_translation[2])
+        if dz > SETTLE_MOTION * self.size:
+            self.risen = True
+            return Command(dz=dz)
+        if self.risen:
+            self.risen = False
+            return Command()
+        return None
+
+    def _pad_lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
+        """The next rise of a frictional pad: to the pad load ``max(N - N_0 /
+        steps, q N)`` (uniform steps of the loaded pad load ``N_0`` while it is
+        large, geometric ones of ratio ``q`` towards zero, ``q`` taking
+        ``steps`` down to ``GRIP_FLOOR`` times the weight), then past the
+        zero; the height step is predicted by the secant of the pad load
+        against its height.  Once every pad contact is open, one settle step
+        (``Command()``) and the end."""
+        h = float(state.upper_translation[2])
+        pad_force = np.abs(self.loaded_pad) if report is None else np.linalg.norm(report.upper_force)
+        load = self.loaded_pad if report is None else -float(report.upper_force[2])
+        if pad_force <= 0.1 * SETTLE_FORCE * self.weight:
+            if self.lifted_off:
+                return self._rise(state)
+            self.lifted_off = True
+            return Command()
+        self.pad_points.append((h, load))
+        slope = self.loaded_pad / self.depth  # -dN/dh of the press, N/m
+        if len(self.pad_points) >= 2:
+            (h1, n1), (h2, n2) = self.pad_points[-2:]
+            if h2 != h1 and (n1 - n2) / (h2 - h1) > 0:
+                slope = (n1 - n2) / (h2 - h1)
+        steps, n0 = self.release.steps, self.loaded_pad
+        floor = min(0.5, GRIP_FLOOR * self.weight / n0)
+        if load <= floor * n0 * (1 + 1e-9):
+            return Command(dz=2.0 * load / slope)  # past the zero: every pad contact opens
+        q = floor ** (1.0 / max(steps - 1, 1))
+        target = max(load - n0 / steps, q * load, floor * n0)
+        return Command(dz=(load - target) / slope)
+
+    def _put_down(self, state: State, report: StepReport) -> Command | None:
+        """The next step of the search for the height where the plate carries
+        nothing (see the module docstring): regula falsi on the bracket of the
+        lowest height where it pulls (``F > 0``; off the floor ``F = W``) and
+        the highest where it pushes, bisecting when a step does not halve
+        ``|F|``; below the first bracket, the own-weight compression."""
+        h, force = float(state.upper_translation[2]), float(report.upper_force[2])
+        if abs(force) <= 0.1 * SETTLE_FORCE * self.weight and np.linalg.norm(report.upper_force) <= \
+                SETTLE_FORCE * self.weight:
+            return None
+        points, touching = self.contact_points, report.normal_force > LIFT_TOL * self.weight
+        slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
+        points.append((h, force, touching))
+        pulls = [(hh, f) for hh, f, _ in points if f > 0]
+        pushes = [(hh, f) for hh, f, _ in points if f < 0]
+        if not pushes:  # not down to the floor's load yet
+            target = min(-self.weight / (2.0 * self.axial_stiffness), h - self.weight / self.axial_stiffness)
+            return Command(dz=target - h)
+        (h_hi, f_hi), (h_lo, f_lo) = min(pulls), max(pushes)
+        if slow:
+            target = 0.5 * (h_lo + h_hi)
+        elif f_hi >= self.weight * (1.0 - LIFT_TOL):  # off the floor up there: F is flat, step with E A / H
+            target = h_lo - f_lo / self.axial_stiffness
+            target = target if target < h_hi else 0.5 * (h_lo + h_hi)
+        else:
+            target = h_lo - f_lo * (h_hi - h_lo) / (f_hi - f_lo)
+        return Command(dz=target - h)
 
 
 def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
@@ -151,12 +273,121 @@ def run_release(model: Model, state: State, release: Release, step, loaded: Step
 
     Returns the final state and the reports of the release steps.
     """
+    state, reports, _ = release_to_rest(model, state, release, step, loaded, check=False)
+    return state, reports
+
+
+def release_to_rest(model: Model, state: State, release: Release, step, loaded: StepReport | None = None,
+                    check: bool = True):
+    """:func:`run_release`, then :func:`rest_check` of where it ended (None
+    without ``check``, or if the release took no step).
+
+    Returns
+    -------
+    state : State
+    reports : list of StepReport
+    rest : Rest or None
+    """
     schedule = ReleaseSchedule(model, release, state, loaded)
     reports: list[StepReport] = []
     while (command := schedule.next_command(state, reports[-1] if reports else None)) is not None:
         state, report = step(model, state, command, consume=True)
         reports.append(report)
-    return state, reports
+    rest = rest_check(model, state, reports[-1], schedule, step) if check and reports else None
+    return state, reports, rest
+
+
+@dataclass(frozen=True)
+class Rest:
+    """Whether a released block is at rest, and the measures that say so.
+
+    ``status`` is ``"settled"`` when the plate (or pad) carries at most
+    ``SETTLE_FORCE`` times the force scale, every node not held by the plate
+    is in equilibrium of the unregularised problem (internal, weight and
+    contact forces, no regularising spring) to the same fraction, and one more
+    step moves no node by more than ``SETTLE_MOTION`` times the block's
+    largest dimension; otherwise ``"not_settled"`` and ``reason`` names the
+    criteria that fail.
+
+    Attributes
+    ----------
+    status : {"settled", "not_settled"}
+    reason : str
+    pad_force : float
+        Norm of the plate's total force on the block, N.
+    imbalance : float
+        Largest out-of-balance force of a node, N.
+    further_motion : float
+        Largest nodal displacement in one more step, m (inf if that step failed).
+    force_scale : float
+        The weight (the loaded normal force without weight), N.
+    """
+
+    status: str
+    reason: str
+    pad_force: float
+    imbalance: float
+    further_motion: float
+    force_scale: float
+
+    @property
+    def settled(self) -> bool:
+        return self.status == "settled"
+
+
+def rest_check(model: Model, state: State, report: StepReport, schedule: ReleaseSchedule, step) -> Rest:
+    """:class:`Rest` of ``state``, the end of a release (``report`` its last
+    step's) run by ``schedule``; ``step`` is :func:`fe_contact.stepping.step.step`
+    (it takes the one more step, from ``state``, which it does not modify).
+
+    The one more step is judged by its last iterate, converged or not: a null
+    step of a stress-free block in the air has no force scale but rounding,
+    and its Newton loop cannot meet a tolerance relative to that; its iterate
+    is accepted when it is in equilibrium by the same absolute measure as the
+    state."""
+    scale = schedule.force_scale
+    held = schedule.release.mode == "lift" and model.pad is None
+    pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
+    _, further = step(model, state, Command())
+    _, further_imbalance = _balance(model, further.displacement,
+                                    np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
+    motion = float(np.abs(further.displacement - state.displacement).max())
+    if not np.isfinite(motion) or further_imbalance > SETTLE_FORCE * scale:
+        motion = np.inf
+    failing = []
+    if not report.converged:
+        failing.append(f"the last release step did not converge ({report.message})")
+    if np.linalg.norm(pad) > SETTLE_FORCE * scale:
+        failing.append(f"the pad still carries {np.linalg.norm(pad):.3g} N (> {SETTLE_FORCE:g} x {scale:.3g} N)")
+    if imbalance > SETTLE_FORCE * scale:
+        failing.append(f"a node is out of balance by {imbalance:.3g} N (> {SETTLE_FORCE:g} x {scale:.3g} N)")
+    if motion > SETTLE_MOTION * max(model.mesh.size):
+        failing.append(f"one more step moves a node by {motion:.3g} m (> {SETTLE_MOTION:g} x block size; "
+                       f"{further.message})")
+    if failing and schedule.taken >= schedule.release.max_steps:
+        failing.append(f"the release stopped at max_steps = {schedule.release.max_steps}")
+    return Rest("not_settled" if failing else "settled", "; ".join(failing) or "settled",
+                float(np.linalg.norm(pad)), imbalance, motion, scale)
+
+
+def _balance(model: Model, U: np.ndarray, reaction: np.ndarray, held: bool, upper_force: np.ndarray):
+    """The pad's total force on the block (3,), N, and the largest out-of-balance
+    force of a node not held by it, N, of the unregularised problem at
+    displacements ``U`` (n_nodes, 3) with contact forces ``reaction``
+    (n_lower, 3, local): ``f_int - f_weight - f_contact`` per node (the
+    plate's reactions, for a ``held`` upper face, are the pad force;
+    otherwise the pad's force is the step's ``upper_force``)."""
+    f_int, _ = internal_force(model.geometry, model.mesh.elements, U, model.material)
+    f = f_int.reshape(-1, 3)
+    if model.body_force is not None:
+        f = f - model.body_force.reshape(-1, 3)
+    np.subtract.at(f, model.contacts.nodes, model.contacts.to_world(reaction))
+    pad = f[model.mesh.upper].sum(axis=0) if held else np.asarray(upper_force, dtype=float)
+    if held:
+        f[model.mesh.upper] = 0.0
+    if not np.all(np.isfinite(f)):
+        return pad, np.inf
+    return pad, float(np.linalg.norm(f, axis=1).max())
 
 
 def pad_stiffness(model: Model) -> np.ndarray:

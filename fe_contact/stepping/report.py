@@ -30,11 +30,13 @@ class NodeStatus(enum.IntEnum):
 @dataclass(frozen=True)
 class IterLog:
     """One Newton iteration: relative out-of-balance force before the update,
-    local-solver iterations and final local residual."""
+    local-solver iterations, final local residual and the local method that
+    solved the contact problem (the chosen one, or its fallback)."""
 
     newton_residual: float
     contact_iterations: int
     contact_residual: float
+    contact_method: str = ""
 
 
 @dataclass(frozen=True)
@@ -86,11 +88,19 @@ class StepReport:
     plate: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) plate pose (x, y, theta), m, m, rad
     weight: float = 0.0  # N, the block's self-weight
     grip: float = 1.0  # fraction of the gripper's load on the upper face (see State.grip)
-    regularisation_force: float = 0.0  # N, norm of the open release's regularising spring forces
+    regularisation_force: float = 0.0  # N, norm of the regularising spring forces (open release, frictional pad)
+    pad_reaction: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(n_upper, 3) N, a frictional pad's contact force on each upper-face node, the pad's frame (n, t_x, t_y)
+    (empty for a bonded pad)."""
 
     @property
     def converged(self) -> bool:
         return self.status is Status.CONVERGED
+
+    @property
+    def contact_methods(self) -> tuple[str, ...]:
+        """The local methods that solved the step's contact problems, in order of first use."""
+        return tuple(dict.fromkeys(log.contact_method for log in self.iterations))
 
     @property
     def n_stick(self) -> int:

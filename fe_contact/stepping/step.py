@@ -18,6 +18,7 @@ arguments raise ``ValueError``.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -74,11 +75,44 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         return open_step(model, state, command, t0, local_problem_hook, consume)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
+    if model.pad is not None:
+        return _split_step(model, state, command, t0, local_problem_hook, 0)
     translation, rotation = commanded_pose(state, command)
     eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
     if not report.converged:
         return state, report
     return next_state(state, eq, translation, rotation, report), report
+
+
+MAX_SPLITS = 4
+"""A frictional pad's step that fails is split in halves, at most this many times over."""
+
+
+def _split_step(model: Model, state: State, command: Command, t0: float, hook, depth: int):
+    """A step with a frictional pad; if it fails, two steps of half the command
+    each (recursively, up to :data:`MAX_SPLITS` levels): the pad's contacts
+    changing state within a step can defeat the local solvers (measured: a
+    pad of mu 60 opening), and half the motion is a finer path of the same
+    friction law.  The report of a split step is its last part's, with the
+    whole command, the iterations of all parts and a message saying so."""
+    translation, rotation = commanded_pose(state, command)
+    eq, report = held_step(model, state, command, translation, rotation, t0, hook)
+    if report.converged:
+        return next_state(state, eq, translation, rotation, report), report
+    if depth >= MAX_SPLITS:
+        return state, report
+    half = Command(dx=command.dx / 2, dy=command.dy / 2, dz=command.dz / 2, dtheta=command.dtheta / 2)
+    middle, first = _split_step(model, state, half, t0, hook, depth + 1)
+    if not first.converged:
+        return state, first
+    end, second = _split_step(model, middle, half, t0, hook, depth + 1)
+    if not second.converged:
+        return state, second
+    report = replace(second, command=command, step_index=state.step_index + 1,
+                     newton_iterations=first.newton_iterations + second.newton_iterations,
+                     message=f"converged in parts (half steps, {depth + 1} level(s) deep)",
+                     slip_increment=second.slip_increment + first.slip_increment)
+    return replace(end, step_index=state.step_index + 1), report
 
 
 def _check_arguments(model, state, command) -> None:
@@ -90,7 +124,7 @@ def _check_arguments(model, state, command) -> None:
     if not isinstance(command, Command):
         raise ValueError(f"command must be a Command, got {type(command).__name__}")
     expected = {"displacement": (model.mesh.n_nodes, 3), "reaction": (model.n_contacts, 3),
-                "upper_translation": (3,), "slip_path": (model.n_contacts,)}
+                "upper_translation": (3,), "slip_path": (model.n_lower,)}
     for name, shape in expected.items():
         a = getattr(state, name)
         if a.shape != shape:

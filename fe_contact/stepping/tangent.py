@@ -118,7 +118,7 @@ class Tangent:
         free = model.free_dofs
         n_lower = model.n_contacts
         # Positions of the contact dofs (x, y, z per node) inside the free-dof vector.
-        self.contact_index = np.searchsorted(free, model.lower_dofs.ravel())
+        self.contact_index = np.searchsorted(free, model.contact_dofs.ravel())
         self.n_free = free.size
         m = 3 * n_lower
         structure = model.factor_structure
@@ -128,7 +128,7 @@ class Tangent:
             try:
                 with dense_kernel(structure.max_front):
                     self.factor = factorise(structure, K.data)
-                    G = self.factor.root_inverse()  # contact dofs in lower_dofs order
+                    G = self.factor.root_inverse()  # contact dofs in contact_dofs order
                 self.method = "multifrontal"
                 build_s = (structure.flops + m**3) / _DENSE_FLOPS
             except NotPositiveDefinite:
@@ -147,14 +147,10 @@ class Tangent:
         self.build_s = n_points * _S_PER_TANGENT_POINT + build_s
         solves = 1.0 if self.method == "multifrontal" else 2.0  # per iteration (solve_with_contact)
         self.iteration_s = _ITERATION_OVERHEAD_S + n_points * _S_PER_GAUSS_POINT + solves * solve_s + local_s
-        # to the local frames, W = (I x T) G (I x T)^T, in place a band of rows at
-        # a time (two batched products; no second matrix of W's size)
-        T = model.frame
+        # to the local frames, W = T G T^T (T block diagonal), in place a band
+        # of rows at a time (no second matrix of W's size)
         W = G
-        blocks = W.reshape(n_lower, 3, n_lower, 3)
-        for i in range(0, n_lower, 256):
-            band = blocks[i:i + 256]
-            band[...] = (T @ band.reshape(-1, 3, m)).reshape(band.shape) @ T.T
+        model.contacts.rotate_blocks(W)
         # Divided by its mean diagonal compliance, u = W r + q has force units, so
         # the natural-map residual (r - proj(r - modified(u))) is homogeneous; the
         # contact law is invariant under this scaling of u.  Kept scaled, once.
@@ -278,7 +274,7 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
     """
     try:
         try:
-            tangent = Tangent(model, handed_K.pop(), lu_fallback=it == 0 and model.options.reuse_tangent)
+            tangent = Tangent(model, handed_K.pop(), lu_fallback=it == 0 and model.reuses_tangent)
         except NotPositiveDefinite:
             tangent = None  # K and its partial factors go with the exception
         at_start = tangent is None

@@ -41,15 +41,21 @@ def print_rest(summary) -> None:
     if rest is None:
         return
     lo = rest.lower_centroid
-    print(f"at rest after the {rest.mode} release (step {rest.step}, R = release steps): lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
+    print(f"{'at rest' if rest.settled else 'NOT settled'} after the {rest.mode} release (step {rest.step}, R = release steps): lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
           f"yaw {rest.lower_yaw_deg:.4f}°, normal force {rest.normal_force:.4g} N, "
           f"strain energy {rest.strain_energy:.3g} J (the steps before the release are the loaded poses)")
 
 
 def exit_status(run) -> int:
-    """0 for a completed run; otherwise the failure on stderr and :data:`EXIT_SOLVER_FAILURE`."""
+    """0 for a completed run (whose block, if released, settled); otherwise the
+    failure on stderr and :data:`EXIT_SOLVER_FAILURE`."""
     if not run.completed:
         print(f"pushplan: solver failure: {run.summary.failure.message}", file=sys.stderr)
+        return EXIT_SOLVER_FAILURE
+    rest = run.summary.rest
+    if rest is not None and not rest.settled:
+        print(f"pushplan: solver failure: the block did not settle after the release: {rest.reason}",
+              file=sys.stderr)
         return EXIT_SOLVER_FAILURE
     return 0
 

@@ -26,12 +26,19 @@ A scenario reads::
     [solver]                                  # optional, fe_contact.SolverOptions fields
     local_method = "uzawa"
     [gripper]                                 # optional: a compliant gripper (omitted: rigid drive)
-    stiffness_xy = 4e4                        # N/m, > 0 (inf: rigid)
+    stiffness_xy = 4e4                        # N/m, > 0 (inf: rigid); with stiffness_yaw
     stiffness_yaw = 5.0                       # N m/rad, > 0 (inf: rigid)
+    friction = "bonded"                       # the pad on the upper face: "bonded" (default, the paper's
+                                              # displacement control), mu (isotropic, >= 0), or a table
+                                              # {mu_x = .., mu_y = .., angle_deg = ..}: a rigid frictional
+                                              # contact body (rigid gripper, lift release with weight)
     [release]                                 # optional: let go after the last load step
-    mode = "open"                             # "lift" (rise until the plate carries no load) or
-                                              # "open" (every upper-face traction to zero; needs density > 0)
+    mode = "open"                             # "lift" (rise until the pad carries no load) or
+                                              # "open" (bonded pad only: every upper-face traction to zero,
+                                              # through a pad stiffness and schedule; needs density > 0)
     steps = 16                                # increments (>= 1; default 16)
+    height = 0.0                              # lift: the gripper rises to this height (m, >= 0) once
+                                              # it has let go
 
 Unknown keys and invalid values raise :class:`~pushplan.errors.InputError` naming the
 key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other commands
@@ -92,6 +99,8 @@ class Scenario:
     density: float = 0.0
     gripper: Gripper | None = None
     release: Release | None = None
+    pad: Friction | None = None
+    """The gripper pad's friction (None: bonded)."""
 
     def model(self, elements=None, quadrature=None, what: str | None = None) -> Model:
         """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh
@@ -116,6 +125,7 @@ class Scenario:
                 quadrature=quadrature or self.quadrature,
                 options=self.solver,
                 gripper=self.gripper or Gripper(),
+                pad=self.pad,
             )
         except ValueError as exc:  # fe_contact's own checks at its public boundary
             raise InputError(f"scenario {self.name}: {exc}") from None
@@ -131,8 +141,12 @@ class Scenario:
         if self.gripper is not None:
             optional["gripper"] = {"stiffness_xy": self.gripper.stiffness_xy,
                                    "stiffness_yaw": self.gripper.stiffness_yaw}
+        if self.pad is not None:
+            optional.setdefault("gripper", {})["friction"] = pad_friction_dict(self.pad)
         if self.release is not None:
             optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
+            if self.release.height:
+                optional["release"]["height"] = self.release.height
         return {
             "name": self.name,
             "description": self.description,
@@ -194,25 +208,68 @@ def _stiffness(t: Table, k: str) -> float:
     return t.number(k, positive=True, hi=MAX_GRIPPER_STIFFNESS)
 
 
-def _gripper(top: Table) -> Gripper | None:
+def _gripper(top: Table) -> tuple[Gripper | None, Friction | None]:
     if "gripper" not in top:
-        return None
-    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw"}, required={"stiffness_xy", "stiffness_yaw"})
+        return None, None
+    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw", "friction"})
+    pad = _pad_friction(t) if "friction" in t else None
+    if "stiffness_xy" not in t and "stiffness_yaw" not in t:
+        return None, pad
+    for k in ("stiffness_xy", "stiffness_yaw"):
+        if k not in t:
+            raise InputError(f"gripper.{k} is missing (stiffness_xy and stiffness_yaw go together)")
     xy, yaw = _stiffness(t, "stiffness_xy"), _stiffness(t, "stiffness_yaw")
     if math.isinf(xy) != math.isinf(yaw):
         raise InputError("gripper.stiffness_yaw must be inf with gripper.stiffness_xy = inf, and finite with it "
                          f"finite (a gripper is rigid or compliant), got {xy} and {yaw}")
-    return Gripper(xy, yaw)
+    if pad is not None and not math.isinf(xy):
+        raise InputError(f"gripper.friction = {t.data['friction']!r} needs a rigid gripper (stiffness inf), "
+                         f"got gripper.stiffness_xy = {xy}")
+    return Gripper(xy, yaw), pad
 
 
-def _release(top: Table, density: float) -> Release | None:
+def _pad_friction(t: Table) -> Friction | None:
+    """``gripper.friction``: "bonded" (None), a number (isotropic) or a table {mu_x, mu_y, angle_deg}."""
+    value = t.data["friction"]
+    if isinstance(value, str):
+        if value != "bonded":
+            raise InputError(f'gripper.friction must be "bonded", a number >= 0 or a table '
+                             f"{{mu_x, mu_y, angle_deg}}, got {value!r}")
+        return None
+    if isinstance(value, dict):
+        f = t.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
+        return Friction(f.number("mu_x", nonneg=True), f.number("mu_y", nonneg=True),
+                        math.radians(f.number("angle_deg", 0.0)))
+    mu = t.number("friction", nonneg=True)
+    return Friction(mu, mu)
+
+
+def pad_friction_dict(pad: Friction | None):
+    """The gripper pad's friction as written in files: "bonded" or {mu_x, mu_y, angle_deg}."""
+    if pad is None:
+        return "bonded"
+    return {"mu_x": pad.mu_x, "mu_y": pad.mu_y, "angle_deg": math.degrees(pad.angle)}
+
+
+def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Friction | None) -> Release | None:
     if "release" not in top:
         return None
-    t = top.table("release", {"mode", "steps"}, required={"mode"})
+    t = top.table("release", {"mode", "steps", "height"}, required={"mode"})
     mode = t.choice("mode", RELEASE_MODES)
+    if pad is not None and (mode != "lift" or density <= 0):
+        raise InputError(f"release.mode = {mode!r} with a frictional pad (gripper.friction) must be \"lift\" of a "
+                         "block with weight (material.density > 0): nothing holds a weightless block once the "
+                         "pad's load is zero")
     if mode == "open" and density <= 0:
         raise InputError('release.mode = "open" needs a block with weight: set material.density > 0')
-    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS))
+    depth = sum(c.dz for c in commands)
+    if depth >= 0:
+        raise InputError(f"release.mode = {mode!r} needs a press before it: the loads' dz must sum to < 0 m, "
+                         f"got {depth:g}")
+    height = t.number("height", 0.0, nonneg=True)
+    if height > 0 and mode != "lift":
+        raise InputError(f"release.height = {height} is the height a lift rises to: it needs release.mode = \"lift\"")
+    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height)
 
 
 def _commands(loads) -> tuple[Command, ...]:
@@ -257,6 +314,8 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     material = top.table("material", {"young", "poisson", "density"}, required={"young", "poisson"})
     density = material.number("density", 0.0, nonneg=True)
     friction = top.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
+    commands = _commands(data.get("load", []))
+    gripper, pad = _gripper(top)
     scenario = Scenario(
         name=top.string("name", name),
         description=top.string("description", ""),
@@ -268,12 +327,13 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         mu_x=friction.number("mu_x", nonneg=True),
         mu_y=friction.number("mu_y", nonneg=True),
         angle_deg=friction.number("angle_deg", 0.0),
-        commands=_commands(data.get("load", [])),
+        commands=commands,
         solver=_solver(data.get("solver", {})),
         extra={k: data[k] for k in EXTRA_TABLES if k in data},
         density=density,
-        gripper=_gripper(top),
-        release=_release(top, density),
+        gripper=gripper,
+        pad=pad,
+        release=_release(top, density, commands, pad),
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)
@@ -292,4 +352,4 @@ def load_scenario(path) -> Scenario:
 
 
 __all__ = ["EXTRA_TABLES", "MAX_ELEMENTS", "MAX_STEPS", "Scenario", "ScenarioError", "load_scenario",
-           "parse_scenario"]
+           "pad_friction_dict", "parse_scenario"]

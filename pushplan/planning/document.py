@@ -12,6 +12,7 @@ from fe_contact import Model
 from ..config.commands import commands_to_list, planar_commands
 from ..config.fingerprint import scenario_fingerprint
 from ..config.plan import PlanSpec
+from ..config.scenario import pad_friction_dict
 from .result import PlanResult
 from .target import pose_error
 
@@ -105,6 +106,7 @@ def _release_json(result: PlanResult) -> dict:
     release = result.scenario.release
     return {"mode": None if release is None else release.mode,
             "steps": None if release is None else release.steps,
+            "gripper_friction": pad_friction_dict(result.scenario.pad),
             "target_state": result.spec.target_state,
             "meaning": ("the target is the lower-face pose at rest after the release" if result.spec.target_state
                         == "rest" else "the target is the lower-face pose under load, the gripper still holding "

@@ -12,7 +12,9 @@ runs its steps through :func:`drive`; what it does with each step is an *observe
 ``run.summary`` is up to date when an observer sees a step.  With a ``release``
 (:class:`fe_contact.Release`), its steps follow the commands, each chosen after the
 last report (:class:`fe_contact.ReleaseSchedule`); they are steps like any other,
-and ``run.summary.rest`` describes where the block came to rest.  A step that does not
+and ``run.summary.rest`` describes where the block came to rest and whether it is
+settled (:func:`fe_contact.rest_check`: the pad unloaded, every node in equilibrium,
+one more step moves nothing).  A step that does not
 converge ends the run with a :class:`Failure` (its state is not kept); ``drive`` never
 turns an exception into a status: ``fe_contact.stepping.step`` reports numerical breakdowns as
 statuses itself, so anything raised here is a bug and propagates.
@@ -23,8 +25,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, step
+from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, rest_check, step
 
+from ..config.scenario import pad_friction_dict
 from ..errors import InputError
 from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
 
@@ -112,8 +115,9 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
               states=[start] if keep_states else [])
     hook = _hook(observers)
     t0 = time.perf_counter()
+    schedule: list[ReleaseSchedule] = []  # the release's, once it begins
     try:
-        for i, command in enumerate(_commands(model, commands, release, run)):
+        for i, command in enumerate(_commands(model, commands, release, run, schedule)):
             new_state, report = step(model, run.state, command, local_problem_hook=hook,
                                      consume=owns_start or i > 0)
             run.reports.append(report)
@@ -125,8 +129,10 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
                 break
         else:
             run.summary.status = RunStatus.COMPLETED
-            if release is not None:
-                run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode)
+            if release is not None and run.reports:
+                rest = rest_check(model, run.state, run.reports[-1], schedule[0], step)
+                run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
+                                                           pad_friction_dict(model.pad))
         run.summary.elapsed_s = time.perf_counter() - t0
         _call(observers, "finish", run)
     finally:
@@ -134,12 +140,14 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
     return run
 
 
-def _commands(model: Model, commands: tuple, release: Release | None, run: Run):
-    """The commands, then the release's, each chosen after the last step."""
+def _commands(model: Model, commands: tuple, release: Release | None, run: Run, kept: list):
+    """The commands, then the release's, each chosen after the last step (its
+    schedule appended to ``kept``)."""
     yield from commands
     if release is None:
         return
     schedule = ReleaseSchedule(model, release, run.state, run.reports[-1] if run.reports else None)
+    kept.append(schedule)
     while (command := schedule.next_command(run.state, run.reports[-1] if run.reports else None)) is not None:
         yield command
 

@@ -95,8 +95,11 @@ class FclibExport:
         W, q, sol = self._last
         self._last = None
         model, friction, k = run.model, run.model.friction, report.step_index
+        contacts = model.contacts  # the floor's, then a frictional pad's (each its own cone)
+        angles = [friction.angle] + ([model.pad.angle] if model.pad is not None else [])
         write_local_problem(
-            self.folder / f"step_{k:03d}.hdf5", W, q, friction.mu_x, friction.mu_y, angle=friction.angle,
+            self.folder / f"step_{k:03d}.hdf5", W, q, contacts.mu_x, contacts.mu_y,
+            angle=np.asarray(angles)[contacts.body],
             title=f"pushplan {self.run_name} step {k}",
             description=(
                 f"Last local contact problem of load step {k} ({report.status.value}) of scenario "

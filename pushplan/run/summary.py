@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fe_contact import Command, NodeStatus, StepReport
+from fe_contact import Command, NodeStatus, Rest, StepReport
 
 from ..config.commands import command_from_dict, command_to_dict
 
@@ -170,7 +170,11 @@ class Failure:
 
 @dataclass(frozen=True)
 class RestSummary:
-    """The block at rest after a release (the last release step; SI units, yaw in rad)."""
+    """The block at rest after a release (the last release step; SI units, yaw in rad).
+
+    ``status`` is ``"settled"`` or ``"not_settled"`` (:class:`fe_contact.Rest`),
+    ``reason`` why not; ``pad_force`` the plate's remaining force, N, and
+    ``further_motion`` how far one more step moves a node, m."""
 
     mode: str
     lower_centroid: tuple[float, float, float]
@@ -181,13 +185,24 @@ class RestSummary:
     strain_energy: float
     status: str
     step: int | None = None  # the step at which the block is at rest (the last release step)
+    reason: str = ""
+    pad_force: float = 0.0
+    further_motion: float = 0.0
+    gripper_friction: str | dict = "bonded"
+    """The pad's friction the rest pose assumes: "bonded" or {mu_x, mu_y, angle_deg}."""
+
+    @property
+    def settled(self) -> bool:
+        return self.status == "settled"
 
     @classmethod
-    def from_report(cls, report: StepReport, mode: str) -> RestSummary:
-        return cls(mode=mode, step=report.step_index, lower_centroid=_floats(report.lower_centroid), lower_yaw=float(report.lower_yaw),
+    def from_report(cls, report: StepReport, mode: str, rest: Rest, gripper_friction="bonded") -> RestSummary:
+        return cls(mode=mode, step=report.step_index, lower_centroid=_floats(report.lower_centroid),
+                   lower_yaw=float(report.lower_yaw),
                    upper_centroid=_floats(report.upper_centroid), normal_force=float(report.normal_force),
                    tangential_force=_floats(report.tangential_force), strain_energy=float(report.strain_energy),
-                   status=report.status.value)
+                   status=rest.status, reason=rest.reason, pad_force=rest.pad_force,
+                   further_motion=rest.further_motion, gripper_friction=gripper_friction)
 
     @property
     def lower_yaw_deg(self) -> float:
@@ -197,14 +212,18 @@ class RestSummary:
         return {"mode": self.mode, "lower_centroid": list(self.lower_centroid), "lower_yaw_deg": self.lower_yaw_deg,
                 "upper_centroid": list(self.upper_centroid), "normal_force": self.normal_force,
                 "tangential_force": list(self.tangential_force), "strain_energy": self.strain_energy,
-                "status": self.status, "step": self.step}
+                "status": self.status, "step": self.step, "reason": self.reason, "pad_force": self.pad_force,
+                "further_motion": self.further_motion, "gripper_friction": self.gripper_friction}
 
     @classmethod
     def from_dict(cls, d: dict) -> RestSummary:
         return cls(mode=d["mode"], lower_centroid=_floats(d["lower_centroid"]),
                    lower_yaw=math.radians(d["lower_yaw_deg"]), upper_centroid=_floats(d["upper_centroid"]),
                    normal_force=float(d["normal_force"]), tangential_force=_floats(d["tangential_force"]),
-                   strain_energy=float(d["strain_energy"]), status=d["status"], step=d.get("step"))
+                   strain_energy=float(d["strain_energy"]), status=d["status"], step=d.get("step"),
+                   reason=d.get("reason", ""), pad_force=float(d.get("pad_force", 0.0)),
+                   further_motion=float(d.get("further_motion", 0.0)),
+                   gripper_friction=d.get("gripper_friction", "bonded"))
 
 
 @dataclass
