@@ -262,3 +262,25 @@ def test_infeasible_target_gives_best_reachable_plan(tmp_path, capsys):
     # the naive baseline it is compared with keeps the same step bounds (issue 22)
     naive = np.array([[c["dx"], c["dy"]] for c in doc["naive"]["commands"]])
     np.testing.assert_allclose(naive, [[3e-4, 0.0]] * 2, rtol=1e-12)
+
+
+def test_cli_plan_without_baseline_gives_the_same_plan(tmp_path, capsys):
+    """``--no-baseline`` skips the naive rollout on the verification mesh (issue 32): the
+    same commands and verified poses, ``naive`` null, one verification rollout fewer, and
+    the recording is still written."""
+    data = coarse_data("plan_steel_case3")
+    data["plan"].update(x=4e-4, y=2e-4, steps=2)
+    scenario_file = write_toml(tmp_path / "steel.toml", data)
+    docs = {}
+    for flags in ((), ("--no-baseline",)):
+        out = tmp_path / ("plan" + "".join(flags))
+        assert main(["plan", str(scenario_file), "--out", str(out), "--quiet", *flags]) == 0
+        docs[flags] = json.loads((out / "plan.json").read_text())
+        assert (out / "recording.rrd").stat().st_size > 0
+    with_naive, without = docs[()], docs[("--no-baseline",)]
+    assert without["naive"] is None and with_naive["naive"] is not None
+    assert capsys.readouterr().out.count("naive error") == 1  # by the run with the baseline only
+    assert without["commands"] == with_naive["commands"]
+    assert without["poses"]["verified"] == with_naive["poses"]["verified"]
+    rollouts = with_naive["solver"]["fe_rollouts"], without["solver"]["fe_rollouts"]
+    assert rollouts[1]["verification"] == rollouts[0]["verification"] - 1

@@ -59,7 +59,7 @@ def _world_poses(doc: dict, spec) -> dict:
 
     verified = [row(p) for p in doc["poses"]["verified"]]
     return {**doc["plan"]["world"], "verified": verified, "verified_final": verified[-1],
-            "naive_final": row(doc["naive"]["verified_poses"][-1])}
+            "naive_final": None if doc["naive"] is None else row(doc["naive"]["verified_poses"][-1])}
 
 
 def cmd_plan(args) -> int:
@@ -92,7 +92,7 @@ def cmd_plan(args) -> int:
             print(text, file=sys.stderr, flush=True)
 
     with tx:
-        result = plan(scenario, spec, log=log, after=start.executed if start else ())
+        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline)
         doc = plan_document(result)
         if spec.world_origin is not None:
             doc["world"] = _world_poses(doc, spec)
@@ -110,12 +110,14 @@ def cmd_plan(args) -> int:
     state = spec.target_state
     print(f"  target: the lower-face pose {'at rest after the release' if state == 'rest' else 'under load'}")
     for name in ("loaded", "rest"):
-        plan_pose, naive_pose = doc["final_poses"][name], doc["naive"]["final_poses"][name]
+        plan_pose = doc["final_poses"][name]
         if plan_pose is None:
             continue
         mark = " (the target's)" if name == state else ""
         print(f"  planned error {name:>6}{mark} (FE, verification mesh): {_describe(plan_pose['error'])}")
-        print(f"  naive error   {name:>6}{mark} (FE, verification mesh): {_describe(naive_pose['error'])}")
+        if doc["naive"] is not None:
+            naive_pose = doc["naive"]["final_poses"][name]
+            print(f"  naive error   {name:>6}{mark} (FE, verification mesh): {_describe(naive_pose['error'])}")
     if spec.world_origin is not None:
         x, y, yaw = doc["world"]["verified_final"]
         print(f"  verified final pose (world frame): x {x * 1e3:.5f} mm, y {y * 1e3:.5f} mm, yaw {yaw:.4f} deg")
@@ -141,6 +143,8 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario TOML file with a [plan] table")
     p.add_argument("--out", required=True, help="output folder (plan.json, recording.rrd)")
     p.add_argument("--no-recording", action="store_true", help="do not write recording.rrd")
+    p.add_argument("--no-baseline", action="store_true",
+                   help="do not roll the naive commands out on the verification mesh (plan.json: naive is null)")
     p.add_argument("--from", dest="from_observations", metavar="OBSERVATIONS",
                    help="re-plan the remaining steps from the last observed pose of this observation file (.csv or "
                    ".json: the press and the pushes executed so far); poses in plan.json are then relative to it")

@@ -46,7 +46,8 @@ def plan_document(result: PlanResult) -> dict:
     commands) in the :mod:`pushplan.config.commands` format; poses are lists of
     ``[x (m), y (m), yaw (deg)]`` of the lower face, row 0 after the press, row k
     after planned command k (simulate step ``press_steps + k``).  ``solver.fe_rollouts``
-    counts every rollout per mesh: calibration, correction and the naive baseline.
+    counts every rollout per mesh: calibration, correction and the naive baseline
+    (``naive`` is None for a plan made without it).
     """
     spec, sol, state = result.spec, result.solution, result.spec.target_state
     return {
@@ -69,7 +70,7 @@ def plan_document(result: PlanResult) -> dict:
                      "yaw_deg": math.degrees(float(result.modifier[2]))},
         "final_error": _error_json(result.verified.final(state), spec),
         "final_poses": _final_poses_json(result.verified, spec),
-        "naive": {
+        "naive": None if result.naive is None else {
             "commands": _commands_json(result.naive.commands),
             "verified_poses": _poses_json(result.naive.lower),
             "final_error": _error_json(result.naive.final(state), spec),
@@ -126,5 +127,6 @@ def write_recording(result: PlanResult, path, verification_model: Model) -> None
             rec.log_step(rep, summary)
         dims = 3 if spec.yaw_targeted else 2
         rec.log_plan(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
-                     verified=result.verified.lower[:, :dims], naive=result.naive.lower[:, :dims],
+                     verified=result.verified.lower[:, :dims],
+                     naive=None if result.naive is None else result.naive.lower[:, :dims],
                      cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))

@@ -168,7 +168,7 @@ def _status(spec: PlanSpec, verified: Rollout, reach: str) -> tuple[str, str]:
                              "per mesh; the best verified plan is reported")
 
 
-def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -> PlanResult:
+def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), baseline: bool = True) -> PlanResult:
     """Plan the commands of the scenario's ``[plan]`` table (see the module docstring).
 
     Parameters
@@ -182,6 +182,9 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -
     after : sequence of fe_contact.Command, optional
         Commands already executed after the press (:mod:`.replan`): the plan starts
         from the state they leave, its poses relative to that state's lower face.
+    baseline : bool
+        Also roll the naive commands out on the verification mesh (``result.naive``);
+        False leaves ``result.naive`` None and saves that rollout.
 
     Raises
     ------
@@ -214,7 +217,7 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=()) -
     loop.run("verification", fine)
 
     t0 = time.perf_counter()
-    naive_roll = fine.rollout(naive)
+    naive_roll = fine.rollout(naive) if baseline else None
     timings["naive_verification"] = time.perf_counter() - t0
     timings["press"] = coarse.press_time + fine.press_time
     timings["total"] = time.perf_counter() - t_start

@@ -59,7 +59,8 @@ class PlanResult:
         The NLP solve behind the reported (best verified) plan.
     planning, verified, naive : Rollout
         The last rollout on the planning mesh (None if none), the best one on the
-        verification mesh (the result) and the naive baseline on the verification mesh.
+        verification mesh (the result) and the naive baseline on the verification mesh
+        (None when planned without it: ``plan(..., baseline=False)``).
     modifier : ndarray, shape (3,)
         The modifier of the reported plan's solve, m and rad.
     rollouts : dict
@@ -79,7 +80,7 @@ class PlanResult:
     solution: NlpSolution
     planning: Rollout | None
     verified: Rollout
-    naive: Rollout
+    naive: Rollout | None
     modifier: np.ndarray
     iterations: tuple[Iteration, ...]
     rollouts: dict
