@@ -142,9 +142,10 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
     periods = []
     startup = warm_up()  # the compiled kernels, loaded before the loop as a controller would
     t0 = time.perf_counter()
+    fractions = np.arange(1, n_sub + 1) / n_sub
     for k in range(len(commands)):
-        for j in range(1, n_sub + 1):
-            d.mocap_pos[mocap], d.mocap_quat[mocap] = traj.at(k, j / n_sub)
+        for pos, quat in zip(*traj.between(k, fractions)):
+            d.mocap_pos[mocap], d.mocap_quat[mocap] = pos, quat
             mj.mj_step(m, d)
         rep = coupler.couple()
         low, _, yaw = block_geom_pose(m, d, scene)

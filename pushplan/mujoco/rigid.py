@@ -52,9 +52,10 @@ def rigid_weld_run(scene: MjcfScene, traj: GripperTrajectory, n_move: int, n_set
     mocap = mocap_index(m, traj.gripper)
     low0, up0, yaw0 = block_geom_pose(m, d, scene)
     out, scale = [], max(scene.scenario.size)
+    fractions = np.minimum(np.arange(1, n_move + n_settle + 1) / n_move, 1.0)
     for k in range(traj.time.size - 1):
-        for j in range(1, n_move + n_settle + 1):
-            d.mocap_pos[mocap], d.mocap_quat[mocap] = traj.at(k, min(j / n_move, 1.0))
+        for pos, quat in zip(*traj.between(k, fractions)):
+            d.mocap_pos[mocap], d.mocap_quat[mocap] = pos, quat
             mj.mj_step(m, d)
         mj.mj_kinematics(m, d)
         low, up, yaw = block_geom_pose(m, d, scene)

@@ -62,9 +62,20 @@ class GripperTrajectory:
 
     def at(self, k: int, s: float) -> tuple[np.ndarray, np.ndarray]:
         """Mocap (pos, quat) a fraction ``s`` in [0, 1] of the way from knot k to k+1."""
+        pos, quat = self.between(k, np.array([s], float))
+        return pos[0], quat[0]
+
+    def between(self, k: int, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mocap poses (pos (n, 3), quat (n, 4)) at fractions ``s`` (n,) of the way from
+        knot k to k+1: a control period's MuJoCo steps at once (the same numbers as
+        :meth:`at` one by one, without its per-step Python work)."""
+        s = s[:, None]
         pos = (1 - s) * self.mocap_pos[k] + s * self.mocap_pos[k + 1]
-        dyaw = (1 - s) * self.upper_yaw[k] + s * self.upper_yaw[k + 1] - self.upper_yaw[0]
-        return pos, quat_mul(quat_z(dyaw), self.mocap_quat[0])
+        dyaw = (1 - s[:, 0]) * self.upper_yaw[k] + s[:, 0] * self.upper_yaw[k + 1] - self.upper_yaw[0]
+        half = dyaw / 2
+        turn = np.zeros((len(half), 4))
+        turn[:, 0], turn[:, 3] = np.cos(half), np.sin(half)  # quat_z of each angle
+        return pos, quat_mul(turn.T, self.mocap_quat[0]).T
 
 
 def gripper_trajectory(scene: MjcfScene, mj_model, commands: Sequence[Command], gripper: str = "gripper",
