@@ -16,9 +16,11 @@ Processes run as a user runs them: ``python -m pushplan.cli`` from the tree's ro
 thread variables the Makefile sets removed.  The load average is recorded before and
 after.  Writes ``benchmarks/results/loop_times.json``.
 
-    python benchmarks/loop_times.py --base /work/wt/perf-base [--repeat 3] [--periods 100]
+    python benchmarks/loop_times.py --base ../perf-base [--base ../perf-main] [--repeat 3] [--periods 100]
 
-``--base``: a checkout of the tree before (commit 7a78d0d) with its own ``.venv``.
+``--base``: a checkout of a tree to compare with (the tree before, commit 7a78d0d; main)
+with its own ``.venv`` (``make .venv/.installed`` there); ratios are this tree's medians
+over its.
 """
 
 from __future__ import annotations
@@ -111,7 +113,7 @@ def measure(trees: list[Tree], repeat: int, periods: int, tmp: Path) -> dict:
     for _ in range(repeat):
         for name in figures(tmp, periods, True):
             for tree in trees:  # alternating A and B, figure by figure
-                argv = figures(tmp / tree.label, periods, tree.label == "this").get(name)
+                argv = figures(tmp / tree.label, periods, tree is trees[0]).get(name)
                 if argv is None:
                     continue
                 (tmp / tree.label).mkdir(exist_ok=True)
@@ -124,38 +126,42 @@ def measure(trees: list[Tree], repeat: int, periods: int, tmp: Path) -> dict:
 
 
 def summarise(samples: dict) -> dict:
-    """Medians per figure and tree, and this / before ratios of the medians."""
+    """Medians per figure and tree, and the ratios of this tree's medians over each other's."""
     result = {}
     for name, by_tree in samples.items():
         med = {label: {k: float(np.median([s[k] for s in runs])) for k in runs[0]} for label, runs in by_tree.items()}
         row = {"median": med, "runs": by_tree}
-        if "before" in med and "this" in med:
-            key = ("rate_wall", "rate_cpu") if name.startswith("cosim") else ("wall_s", "cpu_s")
-            row["ratio_this_over_before"] = {k: med["this"][k] / med["before"][k] for k in key}
+        key = ("rate_wall", "rate_cpu") if name.startswith("cosim") else ("wall_s", "cpu_s")
+        for label in med:
+            if label != "this" and "this" in med:
+                row[f"ratio_this_over_{label}"] = {k: med["this"][k] / med[label][k] for k in key}
         result[name] = row
     return result
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--base", type=Path, help="checkout of the tree before, with its .venv")
+    parser.add_argument("--base", type=Path, action="append", default=[],
+                        help="checkout of a tree to compare with (its .venv), labelled by its folder name; "
+                        "may be repeated")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--periods", type=int, default=100)
     args = parser.parse_args(argv)
-    trees = [Tree("this", ROOT)] + ([Tree("before", args.base.resolve())] if args.base else [])
+    trees = [Tree("this", ROOT)] + [Tree(b.resolve().name, b.resolve()) for b in args.base]
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
         samples = measure(trees, args.repeat, args.periods, Path(d))
     result = {"load_average_before": load_before, "load_average_after": os.getloadavg(),
               "cpus": os.cpu_count(), "repeat": args.repeat, "periods": args.periods,
-              "base": str(args.base) if args.base else None, "figures": summarise(samples)}
+              "bases": {b.resolve().name: str(b.resolve()) for b in args.base}, "figures": summarise(samples)}
     for name, row in result["figures"].items():
         med = row["median"]
         text = "  ".join(f"{label}: wall {m['wall_s']:.2f} s cpu {m['cpu_s']:.2f} s"
                          + (f" ({m['rate_wall']:.0f} periods/s wall, {m['rate_cpu']:.0f} cpu)" if "rate_cpu" in m
                             else "") for label, m in med.items())
-        ratio = row.get("ratio_this_over_before")
-        print(f"{name:>30}  {text}" + (f"  this/before {ratio}" if ratio else ""))
+        ratios = "  ".join(f"this/{k[len('ratio_this_over_'):]} " + ", ".join(f"{q} {v:.3f}" for q, v in r.items())
+                           for k, r in row.items() if k.startswith("ratio_this_over_"))
+        print(f"{name:>30}  {text}  {ratios}")
     print(f"load average {load_before[0]:.1f} -> {result['load_average_after'][0]:.1f} on {os.cpu_count()} cpus")
     print(f"wrote {write_results('loop_times', result)}")
 
