@@ -170,7 +170,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
             model_sc = est.scenario(model_sc)
             if log:
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
-        result, _ = replan(model_sc, _shifted(spec, bias), obs)
+        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False)  # the loop never reads the naive rollout
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth
@@ -196,7 +196,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     noise = noise or NoiseModel()
     press = press_commands(model_sc)
     release = truth_sc.release or model_sc.release
-    first = plan(model_sc, spec)
+    first = plan(model_sc, spec, baseline=False)
     open_truth = _new_truth(truth_sc, press)
     open_truth.execute(planar_commands(first.commands))
     open_final = _final(open_truth, spec, release)

@@ -74,7 +74,8 @@ def remaining_spec(spec: PlanSpec, start: Start) -> PlanSpec:
     return dataclasses.replace(spec, target=tuple(float(v) for v in target), steps=spec.steps - len(start.executed))
 
 
-def replan(scenario: Scenario, spec: PlanSpec, obs: Observations, log=None):
-    """Plan the remaining steps from the state of ``obs``; returns ``(PlanResult, Start)``."""
+def replan(scenario: Scenario, spec: PlanSpec, obs: Observations, log=None, baseline: bool = True):
+    """Plan the remaining steps from the state of ``obs``; returns ``(PlanResult, Start)``
+    (``baseline``: see :func:`~pushplan.planning.planner.plan`)."""
     start = measured_start(scenario, spec, obs)
-    return plan(scenario, remaining_spec(spec, start), log=log, after=start.executed), start
+    return plan(scenario, remaining_spec(spec, start), log=log, after=start.executed, baseline=baseline), start
