@@ -5,8 +5,10 @@ tree against the tree before, in one run, alternating A and B:
 - ``pushplan plan scenarios/plan_steel_case3.toml`` (with its recording) and, on this
   tree, the same with ``--no-baseline``;
 - ``pushplan plan scenarios/plan_rubber.toml --no-recording``: a whole plan on the
-  rubber scenario, the upper bound of one re-plan of the closed loop on its planning mesh
-  (the warm re-plan of issue 32 is not measured here);
+  rubber scenario; and a re-plan of it ``--from`` the observations of the press and the
+  first two planned pushes (what the closed loop does at each push, cold: a process per
+  re-plan), on this tree also with ``--no-baseline`` as ``closed-loop`` now re-plans (the
+  warm re-plan of issue 32 is not measured here);
 - co-simulation over ``--periods`` periods (``run_cosimulation`` of ``mujoco_push`` with a
   press and ``periods - 1`` pushes) on 4x4x2 and 8x8x4: periods per second of the loop,
   by wall clock and by the process's CPU time (the machine is shared: the CPU rate is
@@ -89,6 +91,17 @@ class Tree:
         return wall, cpu, out
 
 
+def observations(tree: Tree, tmp: Path) -> Path:
+    """``obs.csv``: the press and the first two pushes of the rubber plan, executed."""
+    cli = ["-m", "pushplan.cli"]
+    tree.run([*cli, "plan", "scenarios/plan_rubber.toml", "--out", str(tmp / "p0"), "--quiet", "--no-recording"])
+    first = json.loads((tmp / "p0" / "plan.json").read_text())
+    (tmp / "executed.json").write_text(json.dumps({"commands": first["commands"][:3]}))
+    tree.run([*cli, "simulate", "scenarios/plan_rubber.toml", "--commands", str(tmp / "executed.json"), "--out",
+              str(tmp / "s"), "--quiet", "--no-recording", "--observations", str(tmp / "obs.csv")])
+    return tmp / "obs.csv"
+
+
 def figures(tmp: Path, periods: int, new: bool) -> dict:
     """name -> argv; ``new``: the options only this tree has."""
     cli = ["-m", "pushplan.cli"]
@@ -98,17 +111,21 @@ def figures(tmp: Path, periods: int, new: bool) -> dict:
         plan_steel_case3=[*cli, "plan", "scenarios/plan_steel_case3.toml", "--out", str(tmp / "plan"), "--quiet"],
         plan_rubber=[*cli, "plan", "scenarios/plan_rubber.toml", "--out", str(tmp / "rubber"), "--quiet",
                      "--no-recording"],
+        replan_rubber=[*cli, "plan", "scenarios/plan_rubber.toml", "--from", str(tmp.parent / "obs.csv"), "--out",
+                       str(tmp / "replan"), "--quiet", "--no-recording"],
         cosim_4x4x2=["-c", COSIM_CHILD, str(periods), "4", "4", "2"],
         cosim_8x8x4=["-c", COSIM_CHILD, str(periods), "8", "8", "4"],
     )
     if new:
         out["plan_steel_case3_no_baseline"] = [*out["plan_steel_case3"], "--no-baseline"]
+        out["replan_rubber_no_baseline"] = [*out["replan_rubber"], "--no-baseline"]
     return out
 
 
 def measure(trees: list[Tree], repeat: int, periods: int, tmp: Path) -> dict:
     for tree in trees:  # numba's on-disk cache of each tree filled (a first run compiles), not timed
         tree.run(["-c", "import fe_contact; fe_contact.warm_up()"])
+    observations(trees[0], tmp)
     samples: dict = {}
     for _ in range(repeat):
         for name in figures(tmp, periods, True):
