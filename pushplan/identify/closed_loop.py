@@ -170,7 +170,8 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
             model_sc = est.scenario(model_sc)
             if log:
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
-        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False)  # the loop never reads the naive rollout
+        # the loop never reads the naive rollout: no baseline
+        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth
