@@ -1,4 +1,5 @@
-"""Total-Lagrangian St Venant-Kirchhoff hyperelasticity on hex8 elements.
+"""Total-Lagrangian St Venant-Kirchhoff hyperelasticity on hex8 elements (other
+laws of :mod:`fe_contact.fem.material` and the F-bar element: :mod:`fe_contact.fem.finite_strain`).
 
 Kinematics and material of sect. 2.1 / 6 of Feng et al. (2006):
 ``F = I + dU/dX``, ``E = (F^T F - I) / 2``, ``S = lambda tr(E) I + 2 mu E``,
@@ -26,26 +27,19 @@ import scipy.sparse as sp
 
 from .assembly import SparsityPattern, assemble_matrix, assemble_vector, element_dofs
 from .element import gauss_hex, hex8_grad
+from .finite_strain import ELEMENTS, element_energy, element_forces, element_tangents
+from .material import check_law, green_lagrange, stress
 from .mesh import BlockMesh
 
-__all__ = [
-    "Material",
-    "ElementGeometry",
-    "element_geometry",
-    "deformation_gradient",
-    "green_lagrange",
-    "second_piola_kirchhoff",
-    "stored_energy",
-    "internal_force",
-    "internal_force_and_tangent",
-]
+__all__ = ["Material", "ElementGeometry", "element_geometry", "deformation_gradient", "green_lagrange",
+           "second_piola_kirchhoff", "stored_energy", "internal_force", "internal_force_and_tangent"]
 
 _I3 = np.eye(3)
 
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic St Venant-Kirchhoff material.
+    """Isotropic hyperelastic material.
 
     Attributes
     ----------
@@ -57,13 +51,20 @@ class Material:
         Mass density rho, kg/m^3, >= 0; the block's self-weight ``rho g`` is
         the body force ``f0`` of the paper's eq. (3) (:mod:`fe_contact.fem.loads`).
         0 (default) is the paper's weightless block.
+    model : str
+        Constitutive law, one of :data:`fe_contact.fem.material.LAWS`:
+        ``"stvk"`` (St Venant-Kirchhoff, the paper's, default) or
+        ``"neo_hookean"`` (compressible, for foam and rubber).  Both have the
+        small-strain moduli ``young`` and ``poisson``.
     """
 
     young: float
     poisson: float
     density: float = 0.0
+    model: str = "stvk"
 
     def __post_init__(self) -> None:
+        check_law(self.model)
         for name in ("young", "poisson", "density"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real):
@@ -98,12 +99,19 @@ class ElementGeometry:
         ``dN_a/dX_J`` at each Gauss point, 1/m.
     dvol : ndarray, shape (n_elems, n_qp)
         ``det(dX/dxi) * weight``, m^3.
+    element : str
+        Formulation, one of :data:`fe_contact.fem.finite_strain.ELEMENTS`:
+        ``"hex8"`` (plain, the paper's) or ``"fbar"`` (F-bar, does not lock
+        as ``nu -> 0.5``).
     """
 
     grad: np.ndarray
     dvol: np.ndarray
+    element: str = "hex8"
 
     def __post_init__(self) -> None:
+        if self.element not in ELEMENTS:
+            raise ValueError(f"element must be one of {ELEMENTS}, got {self.element!r}")
         grad = np.array(self.grad, dtype=np.float64)
         dvol = np.array(self.dvol, dtype=np.float64)
         if grad.ndim != 4 or grad.shape[2:] != (8, 3):
@@ -139,7 +147,7 @@ class ElementGeometry:
         return int(self.grad.shape[1])
 
 
-def element_geometry(mesh: BlockMesh, quadrature: int = 3) -> ElementGeometry:
+def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8") -> ElementGeometry:
     """Precompute ``dN/dX`` and ``dV`` at the Gauss points of every element.
 
     Parameters
@@ -147,6 +155,8 @@ def element_geometry(mesh: BlockMesh, quadrature: int = 3) -> ElementGeometry:
     mesh : BlockMesh
     quadrature : int, default 3
         Gauss points per direction (3 -> 27 points, as in the paper; 2 -> 8).
+    element : str, default "hex8"
+        Formulation (``"hex8"`` or ``"fbar"``).
 
     Returns
     -------
@@ -169,7 +179,7 @@ def element_geometry(mesh: BlockMesh, quadrature: int = 3) -> ElementGeometry:
         raise ValueError(f"element {bad} has non-positive Jacobian determinant {det.min()}")
     inv = np.linalg.inv(jac)  # dxi_d/dX_I, indexed [d, I]
     grad = np.einsum("qad,eqdI->eqaI", dndxi, inv)
-    return ElementGeometry(grad=grad, dvol=det * weights[None, :])
+    return ElementGeometry(grad=grad, dvol=det * weights[None, :], element=element)
 
 
 def _det3(a: np.ndarray) -> np.ndarray:
@@ -230,28 +240,11 @@ def _displacement_gradient(geometry: ElementGeometry, elements, U) -> np.ndarray
     return H.reshape(n_elems, 3, n_qp, 3).transpose(0, 2, 1, 3)
 
 
-def green_lagrange(F) -> np.ndarray:
-    """Green-Lagrange strain ``E = (F^T F - I) / 2``.
-
-    Parameters
-    ----------
-    F : array_like, shape (..., 3, 3)
-        Deformation gradients.
-
-    Returns
-    -------
-    ndarray, shape (..., 3, 3)
-    """
-    F = np.asarray(F, dtype=np.float64)
-    if F.shape[-2:] != (3, 3):
-        raise ValueError(f"F must have shape (..., 3, 3), got {F.shape}")
-    # Written with H = F - I so small strains do not lose digits to I - I.
-    H = F - _I3
-    return 0.5 * (H + np.swapaxes(H, -1, -2) + np.einsum("...kI,...kJ->...IJ", H, H))
-
-
 def second_piola_kirchhoff(E, material: Material) -> np.ndarray:
-    """St Venant-Kirchhoff stress ``S = lambda tr(E) I + 2 mu E``, Pa.
+    """Second Piola-Kirchhoff stress of the material's law at ``E``, Pa
+    (St Venant-Kirchhoff: ``S = lambda tr(E) I + 2 mu E``; the others
+    through :func:`fe_contact.fem.material.stress` at ``F = chol(I + 2E)^T``,
+    their ``S`` depending on ``C = I + 2 E`` only).
 
     Parameters
     ----------
@@ -268,6 +261,9 @@ def second_piola_kirchhoff(E, material: Material) -> np.ndarray:
     E = np.asarray(E, dtype=np.float64)
     if E.shape[-2:] != (3, 3):
         raise ValueError(f"E must have shape (..., 3, 3), got {E.shape}")
+    if material.model != "stvk":
+        F = np.swapaxes(np.linalg.cholesky(_I3 + 2.0 * E), -1, -2)
+        return stress(material.model, F, material.lame_lambda, material.lame_mu)
     trace = np.trace(E, axis1=-2, axis2=-1)
     return material.lame_lambda * trace[..., None, None] * _I3 + 2.0 * material.lame_mu * E
 
@@ -307,7 +303,9 @@ def _min_det(H) -> float:
 
 
 def stored_energy(geometry: ElementGeometry, elements, U, material: Material) -> float:
-    """Total strain energy ``int (lambda/2 tr(E)^2 + mu E:E) dV``, J.
+    """Total strain energy ``int W dV``, J (St Venant-Kirchhoff:
+    ``W = lambda/2 tr(E)^2 + mu E:E``; the material's law on its element,
+    :mod:`fe_contact.fem.finite_strain`).
 
     Parameters
     ----------
@@ -322,6 +320,9 @@ def stored_energy(geometry: ElementGeometry, elements, U, material: Material) ->
     float
     """
     elements, U = _check_state(geometry, elements, U, material)
+    if not _plain_stvk(geometry, material):
+        return float(element_energy(geometry.grad, geometry.dvol, U[elements], material.model,
+                                    material.lame_lambda, material.lame_mu, geometry.element == "fbar").sum())
     E = green_lagrange(deformation_gradient(geometry, elements, U))
     trace = np.trace(E, axis1=-2, axis2=-1)
     density = 0.5 * material.lame_lambda * trace**2 + material.lame_mu * np.einsum(
@@ -358,9 +359,19 @@ def internal_force(
         If shapes are inconsistent or ``U`` is not finite.
     """
     elements, U = _check_state(geometry, elements, U, material)
+    if not _plain_stvk(geometry, material):
+        fe, min_det = element_forces(geometry.grad, geometry.dvol, U[elements], material.model,
+                                     material.lame_lambda, material.lame_mu, geometry.element == "fbar")
+        return assemble_vector(elements, fe, U.shape[0]), min_det
     H, S = _stress_state(geometry, elements, U, material)
     fe = _element_forces(geometry, H, S)
     return assemble_vector(elements, fe, U.shape[0]), _min_det(H)
+
+
+def _plain_stvk(geometry: ElementGeometry, material: Material) -> bool:
+    """The paper's St Venant-Kirchhoff hex8, computed by this module's own
+    (faster) kernels; other laws and elements by :mod:`fe_contact.fem.finite_strain`."""
+    return material.model == "stvk" and geometry.element == "hex8"
 
 
 def _element_forces(geometry: ElementGeometry, H, S) -> np.ndarray:
@@ -467,6 +478,11 @@ def internal_force_and_tangent(
         )
     if not np.array_equal(pattern.dofs, element_dofs(elements)):
         raise ValueError("pattern was built for a different connectivity than elements")
+    if not _plain_stvk(geometry, material):
+        fe, Ke, min_det = element_tangents(geometry.grad, geometry.dvol, U[elements], material.model,
+                                           material.lame_lambda, material.lame_mu, geometry.element == "fbar",
+                                           tension_only_geometric)
+        return assemble_vector(elements, fe, U.shape[0]), assemble_matrix(pattern, Ke), min_det
     H, S = _stress_state(geometry, elements, U, material)
     fe = _element_forces(geometry, H, S)
     f_int = assemble_vector(elements, fe, U.shape[0])

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fem.elasticity import internal_force
+from ..fem.finite_strain import material_limit
 from ..fem.loads import NO_LOADING, Loading
 from ..contact.local_solver import solve_local
 from .model import IterLog, Model, State, Status
@@ -150,6 +151,10 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         U_flat[model.free_dofs] += dU_free
         U = U_flat.reshape(-1, 3)
         r = np.array(local.r, dtype=float)
+    if status is not Status.CONVERGED:
+        limit = material_limit(model.geometry, model.mesh.elements, U, model.material)
+        if limit is not None:  # the failure's cause, named: the law, not the solver
+            status, message = Status.MATERIAL_UNSTABLE, f"{limit} ({message})"
     cached = tangent.with_workspace(workspace) if model.reuses_tangent and tangent is not None else None
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
@@ -176,10 +181,10 @@ def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: i
 
 def _breakdown(f_int: np.ndarray, min_det: float, it: int) -> tuple[Status, str] | None:
     """Status and message if the iterate is not a configuration to go on from."""
+    if min_det <= 0:  # (before the forces: a law with ln J has none there)
+        return Status.ELEMENT_INVERTED, f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}"
     if not np.all(np.isfinite(f_int)) or not math.isfinite(min_det):
         return Status.NOT_FINITE, f"non-finite internal force at Newton iteration {it}"
-    if min_det <= 0:
-        return Status.ELEMENT_INVERTED, f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}"
     return None
 
 

@@ -17,6 +17,7 @@ class Status(enum.Enum):
     ELEMENT_INVERTED = "element_inverted"
     NOT_FINITE = "not_finite"
     TANGENT_SINGULAR = "tangent_singular"  # K_ff singular or too ill-conditioned for W
+    MATERIAL_UNSTABLE = "material_unstable"  # the law's tangent lost positive definiteness (StVK in compression)
 
 
 class NodeStatus(enum.IntEnum):

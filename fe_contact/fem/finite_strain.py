@@ -1,0 +1,212 @@
+"""Element forces and tangents for any law of :mod:`fe_contact.fem.material`,
+on the plain hex8 (``"hex8"``) or the F-bar hex8 that does not lock (``"fbar"``).
+
+Plain hex8: ``f_a = sum_q dV P(F_q) g_qa`` with ``P = F S`` and the tangent
+
+    K_(a,i)(b,k) = sum_q dV g_qaJ A_iJkL g_qbL,    A_iJkL = d_ik S_JL + F_iI D_IJKL F_kK.
+
+F-bar (de Souza Neto, Peric, Dutko, Owen, Int. J. Solids Struct. 33 (1996)
+3277-3296), in the variational form of the mean dilatation (Nagtegaal, Parks,
+Rice 1974): the volume change of each Gauss point is replaced by the
+element's mean, ``F_bar = a F`` with ``a = (J_bar / J)^(1/3)``,
+``J_bar = sum_q J_q dV_q / V_e``, so ``det F_bar = J_bar`` is one value per
+element and the volumetric energy no longer locks as ``nu -> 0.5``.  The
+energy ``Pi = sum_q dV W(F_bar_q)`` is differentiated exactly, so the
+tangent is its Hessian and symmetric (the original F-bar's is not).  With
+``h_qa = F^-T g_qa`` (spatial gradients), ``H_q = (h_qa)`` and
+``H_bar = sum_q w_q H_q``, ``w_q = J_q dV_q / (J_bar V_e)``,
+``b_q = H_bar - H_q = d ln(J_bar / J_q)/dU``, ``tau = P_bar : F_bar``:
+
+    f = sum_q dV [a B^T P_bar + tau/3 b_q]
+    K = sum_q dV [a^2 B^T A_bar B + (n_q b_q^T + b_q n_q^T)/3 + c_q b_q b_q^T + tau/3 d2 ln(J_bar / J_q)]
+
+with ``n_q = a B^T (A_bar : F_bar + P_bar)``, ``c_q = (F_bar : A_bar : F_bar + tau) / 9``,
+``d2 ln J_q = -X_q``, ``X_q[(a,i),(b,k)] = h_bi h_ak`` and
+``d2 ln J_bar = sum_q w_q (H_q H_q^T - X_q) - H_bar H_bar^T``.  Under a
+homogeneous deformation ``a = 1`` and ``b_q = 0``: both elements pass the
+patch test alike.
+
+Shapes: ``grad`` (n_elems, n_qp, 8, 3) 1/m, ``dvol`` (n_elems, n_qp) m^3,
+``Ue`` element displacements (n_elems, 8, 3) m; element forces (n_elems, 8, 3)
+N; element tangents (n_elems, 24, 24) N/m in the dof order ``3 a + i``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .material import energy_density, principal_stiffness, stress, stress_and_tangent
+
+__all__ = ["ELEMENTS", "AUTO_FBAR_POISSON", "resolve_element", "element_forces", "element_tangents",
+           "element_energy", "point_deformation", "material_limit"]
+
+ELEMENTS = ("hex8", "fbar")
+"""Element formulations: the plain (fully integrated) hex8 and the F-bar hex8."""
+AUTO_FBAR_POISSON = 0.45
+"""``element="auto"`` takes F-bar from this Poisson's ratio on: the plain hex8's
+press force is 9.1x the converged one at nu = 0.499 on 4x4x2 (docs/materials.md)."""
+_CHUNK = 1024  # elements per batch of the tangent (bounds the (e, q, 8, 27) temporaries)
+
+
+def resolve_element(name, poisson: float) -> str:
+    """``name`` (one of :data:`ELEMENTS`, or ``"auto"``: F-bar for ``poisson >=
+    AUTO_FBAR_POISSON``, else hex8); ValueError for anything else."""
+    if name == "auto":
+        return "fbar" if poisson >= AUTO_FBAR_POISSON else "hex8"
+    if name not in ELEMENTS:
+        raise ValueError(f"element must be 'auto' or one of {ELEMENTS}, got {name!r}")
+    return name
+
+
+def point_deformation(grad, dvol, Ue, fbar: bool):
+    """``F`` at the Gauss points (e, q, 3, 3), ``J = det F`` (e, q) and the
+    F-bar factor ``a = (J_bar / J)^(1/3)`` (e, q) (ones for the plain hex8)."""
+    F = np.eye(3) + np.einsum("eai,eqaJ->eqiJ", Ue, grad)
+    J = np.linalg.det(F)
+    if not fbar:
+        return F, J, np.ones_like(J)
+    J_bar = np.sum(J * dvol, axis=1) / np.sum(dvol, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.cbrt(J_bar[:, None] / J)
+    return F, J, a
+
+
+def _spatial_gradients(grad, F):
+    """``h_qa = F^-T g_qa`` (e, q, 8, 3): ``d ln J_q / dU`` per node."""
+    return np.einsum("eqaJ,eqJi->eqai", grad, np.linalg.inv(F))
+
+
+def element_energy(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool) -> np.ndarray:
+    """Stored energy of each element ``sum_q dV W(F_bar_q)`` (n_elems,), J."""
+    F, _, a = point_deformation(grad, dvol, Ue, fbar)
+    return np.sum(energy_density(law, a[..., None, None] * F, lam, mu) * dvol, axis=1)
+
+
+def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
+    """Element internal forces (n_elems, 8, 3), N, and the smallest ``det F``."""
+    F, J, a = point_deformation(grad, dvol, Ue, fbar)
+    min_det = float(J.min())
+    if not min_det > 0:
+        return np.full(Ue.shape, np.nan), min_det
+    Fb = a[..., None, None] * F
+    S = stress(law, Fb, lam, mu)
+    P = Fb @ S
+    fe = np.einsum("eq,eqiJ,eqaJ->eai", dvol * a, P, grad)
+    if fbar:
+        tau = np.einsum("...iJ,...iJ->...", P, Fb) * dvol  # (e, q), dV tau
+        H = _spatial_gradients(grad, F)
+        w = J * dvol / np.sum(J * dvol, axis=1, keepdims=True)
+        H_bar = np.einsum("eq,eqai->eai", w, H)
+        fe += (tau.sum(axis=1)[:, None, None] * H_bar - np.einsum("eq,eqai->eai", tau, H)) / 3.0
+    return fe, min_det
+
+
+def element_tangents(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool,
+                     tension_only_geometric: bool = False):
+    """Element forces (n_elems, 8, 3) N, tangents (n_elems, 24, 24) N/m and the
+    smallest ``det F``; the tangent in batches of elements.
+
+    ``tension_only_geometric`` builds the geometric term ``d_ik S_JL`` with the
+    positive part of ``S`` (see :func:`fe_contact.fem.elasticity.internal_force_and_tangent`).
+    """
+    fe, min_det = element_forces(grad, dvol, Ue, law, lam, mu, fbar)
+    n_elems = grad.shape[0]
+    K = np.empty((n_elems, 24, 24))
+    if not min_det > 0:
+        K.fill(np.nan)
+        return fe, K, min_det
+    for start in range(0, n_elems, _CHUNK):
+        part = slice(start, start + _CHUNK)
+        K[part] = _tangent_chunk(grad[part], dvol[part], Ue[part], law, lam, mu, fbar, tension_only_geometric)
+    return fe, K, min_det
+
+
+def _first_elasticity(Fb, S, D, tension_only: bool):
+    """``A_iJkL = d_ik S_JL + F_iI D_IJKL F_kK`` (n, 3, 3, 3, 3) at points (n, 3, 3)."""
+    n = Fb.shape[0]
+    T = (Fb @ D.reshape(n, 3, 27)).reshape(n, 3, 3, 3, 3)  # [i, J, K, L]
+    T = (T.transpose(0, 1, 2, 4, 3).reshape(n, 27, 3) @ Fb.transpose(0, 2, 1)).reshape(n, 3, 3, 3, 3)
+    A = T.transpose(0, 1, 2, 4, 3).copy()  # [i, J, k, L]
+    if tension_only:
+        lam_s, vec = np.linalg.eigh(S)
+        S = np.einsum("nij,nj,nkj->nik", vec, np.maximum(lam_s, 0.0), vec)
+    for i in range(3):
+        A[:, i, :, i, :] += S
+    return A
+
+
+def _tangent_chunk(grad, dvol, Ue, law, lam, mu, fbar, tension_only):
+    n_e, n_q = dvol.shape
+    F, J, a = point_deformation(grad, dvol, Ue, fbar)
+    Fb = a[..., None, None] * F
+    S, D = stress_and_tangent(law, Fb.reshape(-1, 3, 3), lam, mu)
+    D = np.ascontiguousarray(np.broadcast_to(D, (n_e * n_q, 3, 3, 3, 3)))
+    A = _first_elasticity(Fb.reshape(-1, 3, 3), S, D, tension_only).reshape(n_e, n_q, 3, 3, 3, 3)
+    # sum_q dV a^2 g_aJ A_iJkL g_bL as two batched products
+    Aw = (A * (dvol * a**2)[:, :, None, None, None, None]).transpose(0, 1, 3, 2, 4, 5).reshape(n_e, n_q, 3, 27)
+    T = (grad @ Aw).reshape(n_e, n_q, 8, 3, 3, 3)  # [e, q, a, i, k, L]
+    T = T.transpose(0, 2, 3, 4, 1, 5).reshape(n_e, 72, 3 * n_q)
+    K = T @ grad.transpose(0, 1, 3, 2).reshape(n_e, 3 * n_q, 8)  # [e, (a, i, k), b]
+    K = K.reshape(n_e, 8, 3, 3, 8).transpose(0, 1, 2, 4, 3).reshape(n_e, 24, 24)
+    if fbar:
+        K += _fbar_terms(grad, dvol, F, J, a, Fb, S.reshape(n_e, n_q, 3, 3), A)
+    return K
+
+
+def _fbar_terms(grad, dvol, F, J, a, Fb, S, A):
+    """The F-bar terms of the tangent beyond ``a^2 B^T A_bar B`` (n_e, 24, 24)."""
+    n_e, n_q = dvol.shape
+    P = Fb @ S
+    tau = np.einsum("eqiJ,eqiJ->eq", P, Fb)
+    AF = np.einsum("eqiJkL,eqkL->eqiJ", A, Fb)
+    c = (np.einsum("eqiJ,eqiJ->eq", AF, Fb) + tau) / 9.0 * dvol
+    n = np.einsum("eq,eqiJ,eqaJ->eqai", a * dvol, AF + P, grad).reshape(n_e, n_q, 24)
+    H4 = _spatial_gradients(grad, F)  # (e, q, 8, 3)
+    H = H4.reshape(n_e, n_q, 24)
+    w = J * dvol / np.sum(J * dvol, axis=1, keepdims=True)
+    H_bar = np.einsum("eq,eqk->ek", w, H)
+    b = H_bar[:, None, :] - H  # (e, q, 24)
+    nb = np.einsum("eqk,eql->ekl", n, b) / 3.0
+    K = nb + nb.transpose(0, 2, 1) + np.einsum("eq,eqk,eql->ekl", c, b, b)
+    # tau/3 d2 ln(J_bar / J_q), summed: T/3 d2 ln J_bar + sum_q dV tau/3 X_q
+    tw = tau * dvol / 3.0
+    T = tw.sum(axis=1)
+    d2_ln_j_bar = np.einsum("eq,eqk,eql->ekl", w, H, H) - _swap_sum(w, H4) - np.einsum("ek,el->ekl", H_bar, H_bar)
+    return K + T[:, None, None] * d2_ln_j_bar + _swap_sum(tw, H4)
+
+
+def _swap_sum(weight, H4):
+    """``sum_q weight_q X_q``, ``X_q[(a,i),(b,k)] = h_bi h_ak`` (n_e, 24, 24)."""
+    n_e = H4.shape[0]
+    X = np.einsum("eq,eqbi,eqak->eaibk", weight, H4, H4)
+    return X.reshape(n_e, 24, 24)
+
+
+def material_limit(geometry, elements, U, material) -> str | None:
+    """Why the material's law is past its stable range at displacement ``U``
+    (n_nodes, 3), m, or None if it is not.
+
+    The law is unstable at a Gauss point where the Hessian of ``W`` in the
+    principal stretches is not positive definite
+    (:func:`fe_contact.fem.material.principal_stiffness`, evaluated at
+    ``F_bar`` on the F-bar element); the message names the strain reached
+    there and the law to use instead.  ``geometry`` is an
+    :class:`~fe_contact.fem.elasticity.ElementGeometry`, ``material`` a
+    :class:`~fe_contact.fem.elasticity.Material`.
+    """
+    F, J, a = point_deformation(geometry.grad, geometry.dvol, np.asarray(U)[elements], geometry.element == "fbar")
+    if not (np.all(J > 0) and np.all(np.isfinite(a))):
+        return None  # inverted: not a question of the law
+    min_eig, stretches = principal_stiffness(material.model, a[..., None, None] * F, material.lame_lambda,
+                                             material.lame_mu)
+    unstable = min_eig <= 0.0
+    if not np.any(unstable):
+        return None
+    lo = stretches[unstable][:, 0].min()
+    hi = stretches[unstable][:, 2].max()
+    worst = f"a principal stretch of {lo:.3g} (compressive strain {100 * (1 - lo):.3g} %)" if lo < 1 else (
+        f"a principal stretch of {hi:.3g} (tensile strain {100 * (hi - 1):.3g} %)")
+    advice = ('St Venant-Kirchhoff softens in compression and is unstable beyond; use [material] model = '
+              '"neo_hookean"') if material.model == "stvk" else "the strain is beyond what this law models"
+    return (f"material law {material.model!r} lost stability: its tangent (d2W/dstretch2) is not positive "
+            f"definite at {int(unstable.sum())} of {unstable.size} Gauss points, reached at {worst}; {advice}")
