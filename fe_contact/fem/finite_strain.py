@@ -182,7 +182,7 @@ def _swap_sum(weight, H4):
     return X.reshape(n_e, 24, 24)
 
 
-def material_limit(geometry, elements, U, material) -> str | None:
+def material_limit(geometry, elements, U, material, where: str = "") -> str | None:
     """Why the material's law is past its stable range at displacement ``U``
     (n_nodes, 3), m, or None if it is not.
 
@@ -190,7 +190,8 @@ def material_limit(geometry, elements, U, material) -> str | None:
     principal stretches is not positive definite
     (:func:`fe_contact.fem.material.principal_stiffness`, evaluated at
     ``F_bar`` on the F-bar element); the message names the strain reached
-    there and the law to use instead.  ``geometry`` is an
+    there (``where``: which configuration ``U`` is) and the law to use
+    instead.  ``geometry`` is an
     :class:`~fe_contact.fem.elasticity.ElementGeometry`, ``material`` a
     :class:`~fe_contact.fem.elasticity.Material`.
     """
@@ -209,4 +210,5 @@ def material_limit(geometry, elements, U, material) -> str | None:
     advice = ('St Venant-Kirchhoff softens in compression and is unstable beyond; use [material] model = '
               '"neo_hookean"') if material.model == "stvk" else "the strain is beyond what this law models"
     return (f"material law {material.model!r} lost stability: its tangent (d2W/dstretch2) is not positive "
-            f"definite at {int(unstable.sum())} of {unstable.size} Gauss points, reached at {worst}; {advice}")
+            f"definite {where + ' ' if where else ''}at {int(unstable.sum())} of {unstable.size} Gauss points, reached at "
+            f"{worst}; {advice}")

@@ -67,9 +67,15 @@ def green_lagrange(F) -> np.ndarray:
 
 
 def _log_j_and_cinv(F):
-    J = np.linalg.det(F)
+    J = _det(F)
     C = np.einsum("...kI,...kJ->...IJ", F, F)
     return np.log(J), np.linalg.inv(C)
+
+
+def _det(F):
+    """``det F``; NaN where it is not positive (no energy there: an inverted element)."""
+    J = np.linalg.det(F)
+    return np.where(J > 0, J, np.nan)
 
 
 def stress(law: str, F, lam: float, mu: float) -> np.ndarray:
@@ -103,8 +109,7 @@ def energy_density(law: str, F, lam: float, mu: float) -> np.ndarray:
         E = green_lagrange(F)
         return 0.5 * lam * np.trace(E, axis1=-2, axis2=-1) ** 2 + mu * np.einsum("...IJ,...IJ->...", E, E)
     check_law(law)
-    J = np.linalg.det(F)
-    log_j = np.log(J)
+    log_j = np.log(_det(F))
     return 0.5 * mu * (np.einsum("...iI,...iI->...", F, F) - 3.0) - mu * log_j + 0.5 * lam * log_j**2
 
 

@@ -152,12 +152,21 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         U = U_flat.reshape(-1, 3)
         r = np.array(local.r, dtype=float)
     if status is not Status.CONVERGED:
-        limit = material_limit(model.geometry, model.mesh.elements, U, model.material)
-        if limit is not None:  # the failure's cause, named: the law, not the solver
-            status, message = Status.MATERIAL_UNSTABLE, f"{limit} ({message})"
+        status, message = _named_cause(model, state, U, status, message)
     cached = tangent.with_workspace(workspace) if model.reuses_tangent and tangent is not None else None
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
+
+
+def _named_cause(model: Model, state: State, U: np.ndarray, status: Status, message: str) -> tuple[Status, str]:
+    """A failure's cause named when it is the material law's: past its stable
+    range at the step's start or its last iterate (StVK in compression)."""
+    limit = (material_limit(model.geometry, model.mesh.elements, state.displacement, model.material,
+                            "at the start of the step")
+             or material_limit(model.geometry, model.mesh.elements, U, model.material, "at the last iterate"))
+    if limit is None:
+        return status, message
+    return Status.MATERIAL_UNSTABLE, f"{limit} ({message})"
 
 
 def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: int, loading: Loading):

@@ -34,6 +34,7 @@ import scipy.sparse.linalg as spla
 from ..linalg.threads import dense_kernel, dense_threads
 from ..linalg.cholesky import NotPositiveDefinite, SupernodalFactor, factorise
 from ..fem.elasticity import internal_force_and_tangent
+from ..fem.loads import NO_LOADING
 from ..contact.local_solver import NewtonWorkspace
 from .model import Model, State
 
@@ -291,8 +292,10 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
             tangent = Tangent(model, K)
     except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
         return None, False, f"tangent stiffness singular at Newton iteration {it}: {exc}"
+    if not _flexible(tangent):
+        tangent, at_start = _supported_tangent(model, state, loading, timings), True
     w_diag = np.diag(tangent.W_scaled)
-    if not (tangent.w_mean > 0 and np.all(np.isfinite(tangent.W_scaled)) and np.all(w_diag > 0)):
+    if not _flexible(tangent):
         # a flexibility matrix must be positive definite; rounding has won
         # (e.g. nearly incompressible material, nu -> 0.5)
         return None, at_start, (
@@ -300,3 +303,32 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
             f"(min scaled diagonal {w_diag.min():.3g}): tangent stiffness too ill-conditioned"
         )
     return tangent, at_start, ""
+
+
+def _supported_tangent(model: Model, state: State, loading, timings: dict) -> Tangent:
+    """The start-state tangent with a spring on every contact dof, for a
+    block that is unstable held by its upper face alone.
+
+    ``K_ff`` leaves the contact dofs free: it is the stiffness of the block
+    hanging from its upper face, which a compressive force past about
+    ``G A`` (shear buckling of the free block) makes indefinite although the
+    floor holds the block.  Springs ``k`` (the mean diagonal stiffness of
+    the contact dofs) stand in for the floor: with ``K + k C^T C`` instead of
+    ``K`` Newton's out-of-balance force after an update is ``-k C^T C dU``, nil
+    at the contact nodes the contact law fixes (stick, closed), so the
+    iterations converge to the same equilibrium (the residual is exact) and
+    slow down only where nodes slip or lift off.
+    """
+    t0 = time.perf_counter()
+    _, K, _ = (loading or NO_LOADING).tangent(model, state.displacement)
+    contact = model.diagonal[model.lower_dofs.ravel()]
+    K.data[contact] += np.mean(K.data[contact])
+    dt = time.perf_counter() - t0
+    timings["assembly"] += dt
+    timings["tangent"] -= dt  # (the caller times this call as tangent time)
+    return Tangent(model, K)
+
+
+def _flexible(tangent: Tangent) -> bool:
+    """The flexibility matrix is finite with a positive diagonal."""
+    return bool(tangent.w_mean > 0 and np.all(np.isfinite(tangent.W_scaled)) and np.all(np.diag(tangent.W_scaled) > 0))
