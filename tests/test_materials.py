@@ -9,6 +9,7 @@ uniaxial state, the fast St Venant-Kirchhoff kernels of fe_contact.fem.elasticit
 computation with scikit-fem (tests/press_reference.py).
 """
 
+import dataclasses
 import itertools
 import math
 
@@ -309,3 +310,62 @@ def test_fbar_holds_at_nu_0_4999():
     assert rep.converged, rep.message
     state, rep = step(model, state, Command(dx=1e-4))
     assert rep.converged, rep.message
+
+
+TOML_BASE = {"block": {"size": [0.06, 0.04, 0.03], "elements": [2, 2, 1]},
+             "material": {"young": 0.5e6, "poisson": 0.3},
+             "friction": {"mu_x": 0.5, "mu_y": 0.5}, "load": [{"dz": -1e-3}]}
+
+
+def _scenario(block=None, material=None):
+    from pushplan.config import parse_scenario
+
+    data = {**TOML_BASE, "block": {**TOML_BASE["block"], **(block or {})},
+            "material": {**TOML_BASE["material"], **(material or {})}}
+    return parse_scenario(data)
+
+
+def test_scenario_material_model_and_element():
+    """``[material] model`` and ``[block] element`` reach fe_contact, round-trip,
+    and bad values are one-line InputErrors naming the key; hex8 with nu >= 0.45
+    warns that it locks."""
+    import warnings
+
+    from pushplan.config import parse_scenario
+    from pushplan.errors import InputError, InputWarning
+
+    s = _scenario(block={"element": "fbar"}, material={"model": "neo_hookean"})
+    model = s.model()
+    assert model.material.model == "neo_hookean" and model.element == "fbar"
+    assert parse_scenario(s.to_dict()) == s
+    refit = dataclasses.replace(s, young=2 * s.young).model().material  # as --fit young varies it
+    assert (refit.model, refit.young, refit.lame_mu) == ("neo_hookean", 1e6, 1e6 / 2.6)
+    default = _scenario()
+    assert "model" not in default.to_dict()["material"] and "element" not in default.to_dict()["block"]
+    assert default.model().material.model == "stvk" and default.model().element == "hex8"
+    assert _scenario(material={"poisson": 0.49}).model().element == "fbar"
+    with pytest.raises(InputError, match="material.model"):
+        _scenario(material={"model": "mooney"})
+    with pytest.raises(InputError, match="block.element"):
+        _scenario(block={"element": "hex20"})
+    with pytest.warns(InputWarning, match="locks"):
+        _scenario(block={"element": "hex8"}, material={"poisson": 0.45})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InputWarning)
+        _scenario(block={"element": "hex8"}, material={"poisson": 0.3})
+        _scenario(material={"poisson": 0.49})
+
+
+def test_simulate_names_the_material_limit(tmp_path, capsys):
+    """pushplan simulate of the StVK foam press: a solver failure (exit 3) whose
+    message names the law's limit and the law to use."""
+    from pushplan.cli import main
+    from pushplan.outputs.toml import toml_text
+
+    data = {**TOML_BASE, "block": {"size": [0.06, 0.04, 0.03], "elements": [3, 2, 2]},
+            "load": [{"dz": -1.5e-3, "repeat": 10}]}
+    path = tmp_path / "foam.toml"
+    path.write_text(toml_text(data))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--quiet", "--no-recording"]) == 3
+    err = capsys.readouterr().err
+    assert "lost stability" in err and "neo_hookean" in err

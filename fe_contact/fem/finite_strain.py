@@ -61,7 +61,9 @@ def resolve_element(name, poisson: float) -> str:
 def point_deformation(grad, dvol, Ue, fbar: bool):
     """``F`` at the Gauss points (e, q, 3, 3), ``J = det F`` (e, q) and the
     F-bar factor ``a = (J_bar / J)^(1/3)`` (e, q) (ones for the plain hex8)."""
-    F = np.eye(3) + np.einsum("eai,eqaJ->eqiJ", Ue, grad)
+    n_e, n_q = dvol.shape
+    rows = grad.transpose(0, 2, 1, 3).reshape(n_e, 8, 3 * n_q)  # [e, a, (q, J)]
+    F = np.eye(3) + (Ue.transpose(0, 2, 1) @ rows).reshape(n_e, 3, n_q, 3).transpose(0, 2, 1, 3)
     J = np.linalg.det(F)
     if not fbar:
         return F, J, np.ones_like(J)
@@ -73,7 +75,7 @@ def point_deformation(grad, dvol, Ue, fbar: bool):
 
 def _spatial_gradients(grad, F):
     """``h_qa = F^-T g_qa`` (e, q, 8, 3): ``d ln J_q / dU`` per node."""
-    return np.einsum("eqaJ,eqJi->eqai", grad, np.linalg.inv(F))
+    return grad @ np.linalg.inv(F)
 
 
 def element_energy(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool) -> np.ndarray:
@@ -91,7 +93,7 @@ def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
     Fb = a[..., None, None] * F
     S = stress(law, Fb, lam, mu)
     P = Fb @ S
-    fe = np.einsum("eq,eqiJ,eqaJ->eai", dvol * a, P, grad)
+    fe = _sum_grad_products(grad, P * (dvol * a)[:, :, None, None])
     if fbar:
         tau = np.einsum("...iJ,...iJ->...", P, Fb) * dvol  # (e, q), dV tau
         H = _spatial_gradients(grad, F)
@@ -99,6 +101,18 @@ def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
         H_bar = np.einsum("eq,eqai->eai", w, H)
         fe += (tau.sum(axis=1)[:, None, None] * H_bar - np.einsum("eq,eqai->eai", tau, H)) / 3.0
     return fe, min_det
+
+
+def _sum_grad_products(grad, P):
+    """``sum_(q, J) g_qaJ P_qiJ`` (e, 8, 3) as one (8 x 3q)(3q x 3) product per element."""
+    n_e, n_q = P.shape[:2]
+    rows = grad.transpose(0, 2, 1, 3).reshape(n_e, 8, 3 * n_q)
+    return rows @ P.transpose(0, 1, 3, 2).reshape(n_e, 3 * n_q, 3)
+
+
+def _outer_sum(x, y):
+    """``sum_q x_q y_q^T`` (e, 24, 24) for x, y (e, q, 24)."""
+    return x.transpose(0, 2, 1) @ y
 
 
 def element_tangents(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool,
@@ -158,28 +172,29 @@ def _fbar_terms(grad, dvol, F, J, a, Fb, S, A):
     n_e, n_q = dvol.shape
     P = Fb @ S
     tau = np.einsum("eqiJ,eqiJ->eq", P, Fb)
-    AF = np.einsum("eqiJkL,eqkL->eqiJ", A, Fb)
+    AF = (A.reshape(n_e, n_q, 9, 9) @ Fb.reshape(n_e, n_q, 9, 1)).reshape(n_e, n_q, 3, 3)
     c = (np.einsum("eqiJ,eqiJ->eq", AF, Fb) + tau) / 9.0 * dvol
-    n = np.einsum("eq,eqiJ,eqaJ->eqai", a * dvol, AF + P, grad).reshape(n_e, n_q, 24)
+    n = ((AF + P)[:, :, None] @ grad[..., None]).reshape(n_e, n_q, 24) * (a * dvol)[:, :, None]
     H4 = _spatial_gradients(grad, F)  # (e, q, 8, 3)
     H = H4.reshape(n_e, n_q, 24)
     w = J * dvol / np.sum(J * dvol, axis=1, keepdims=True)
     H_bar = np.einsum("eq,eqk->ek", w, H)
     b = H_bar[:, None, :] - H  # (e, q, 24)
-    nb = np.einsum("eqk,eql->ekl", n, b) / 3.0
-    K = nb + nb.transpose(0, 2, 1) + np.einsum("eq,eqk,eql->ekl", c, b, b)
+    nb = _outer_sum(n, b) / 3.0
+    K = nb + nb.transpose(0, 2, 1) + _outer_sum(b * c[:, :, None], b)
     # tau/3 d2 ln(J_bar / J_q), summed: T/3 d2 ln J_bar + sum_q dV tau/3 X_q
     tw = tau * dvol / 3.0
     T = tw.sum(axis=1)
-    d2_ln_j_bar = np.einsum("eq,eqk,eql->ekl", w, H, H) - _swap_sum(w, H4) - np.einsum("ek,el->ekl", H_bar, H_bar)
+    d2_ln_j_bar = _outer_sum(H * w[:, :, None], H) - _swap_sum(w, H4) - H_bar[:, :, None] * H_bar[:, None, :]
     return K + T[:, None, None] * d2_ln_j_bar + _swap_sum(tw, H4)
 
 
 def _swap_sum(weight, H4):
     """``sum_q weight_q X_q``, ``X_q[(a,i),(b,k)] = h_bi h_ak`` (n_e, 24, 24)."""
-    n_e = H4.shape[0]
-    X = np.einsum("eq,eqbi,eqak->eaibk", weight, H4, H4)
-    return X.reshape(n_e, 24, 24)
+    n_e, n_q = weight.shape
+    H = H4.reshape(n_e, n_q, 24)
+    Y = _outer_sum(H * weight[:, :, None], H).reshape(n_e, 8, 3, 8, 3)  # [a, k, b, i]
+    return Y.transpose(0, 1, 4, 3, 2).reshape(n_e, 24, 24)
 
 
 def material_limit(geometry, elements, U, material, where: str = "") -> str | None:

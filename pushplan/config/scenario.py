@@ -8,10 +8,13 @@ A scenario reads::
     size = [0.02, 0.02, 0.01]                 # lx, ly, lz (m); lower face on z = 0, centred
     elements = [20, 20, 5]                    # nx, ny, nz
     quadrature = 3                            # Gauss points per direction (2 or 3)
+    element = "auto"                          # optional: "hex8", "fbar" (does not lock as nu -> 0.5) or
+                                              # "auto" (fbar from poisson >= 0.45); docs/materials.md
     [material]
     young = 210e9                             # Pa
     poisson = 0.3
     density = 0.0                             # optional, kg/m^3: self-weight (gravity 9.81 m/s^2 along -z)
+    model = "stvk"                            # optional: "stvk" (the paper's) or "neo_hookean" (foam, rubber)
     [friction]
     mu_x = 0.3
     mu_y = 0.05
@@ -54,6 +57,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
+from fe_contact.fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
+from fe_contact.fem.material import LAWS
 from fe_contact.stepping.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
@@ -101,6 +106,8 @@ class Scenario:
     release: Release | None = None
     pad: Friction | None = None
     """The gripper pad's friction (None: bonded)."""
+    material_model: str = "stvk"
+    element: str = "auto"
 
     def model(self, elements=None, quadrature=None, what: str | None = None) -> Model:
         """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh
@@ -120,12 +127,13 @@ class Scenario:
         try:
             return Model(
                 mesh=block_mesh(self.size, elements or self.elements),
-                material=Material(self.young, self.poisson, self.density),
+                material=Material(self.young, self.poisson, self.density, self.material_model),
                 friction=Friction(self.mu_x, self.mu_y, math.radians(self.angle_deg)),
                 quadrature=quadrature or self.quadrature,
                 options=self.solver,
                 gripper=self.gripper or Gripper(),
                 pad=self.pad,
+                element=self.element,
             )
         except ValueError as exc:  # fe_contact's own checks at its public boundary
             raise InputError(f"scenario {self.name}: {exc}") from None
@@ -138,6 +146,11 @@ class Scenario:
         optional = {}  # tables and keys written only when set, so older files read the same
         if self.density:
             material["density"] = self.density
+        if self.material_model != "stvk":
+            material["model"] = self.material_model
+        block = {"size": list(self.size), "elements": list(self.elements), "quadrature": self.quadrature}
+        if self.element != "auto":
+            block["element"] = self.element
         if self.gripper is not None:
             optional["gripper"] = {"stiffness_xy": self.gripper.stiffness_xy,
                                    "stiffness_yaw": self.gripper.stiffness_yaw}
@@ -150,7 +163,7 @@ class Scenario:
         return {
             "name": self.name,
             "description": self.description,
-            "block": {"size": list(self.size), "elements": list(self.elements), "quadrature": self.quadrature},
+            "block": block,
             "material": material,
             "friction": {"mu_x": self.mu_x, "mu_y": self.mu_y, "angle_deg": self.angle_deg},
             "load": commands_to_list(self.commands),
@@ -304,14 +317,14 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         raise InputError("missing table [material]")
     if "friction" not in top:
         raise InputError("missing table [friction]")
-    block = top.table("block", {"size", "elements", "quadrature"}, required={"size", "elements"})
+    block = top.table("block", {"size", "elements", "quadrature", "element"}, required={"size", "elements"})
     elements = block.triple("elements", _axis_count)
     if math.prod(elements) > MAX_ELEMENTS:
         raise InputError(f"block.elements must give at most {MAX_ELEMENTS} elements, got {list(elements)}")
     quadrature = block.integer("quadrature", 3, minimum=1, maximum=3)
     if quadrature not in (2, 3):
         raise InputError(f"block.quadrature must be 2 or 3 (1 leaves hourglass modes), got {quadrature}")
-    material = top.table("material", {"young", "poisson", "density"}, required={"young", "poisson"})
+    material = top.table("material", {"young", "poisson", "density", "model"}, required={"young", "poisson"})
     density = material.number("density", 0.0, nonneg=True)
     friction = top.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
     commands = _commands(data.get("load", []))
@@ -334,9 +347,16 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         gripper=gripper,
         pad=pad,
         release=_release(top, density, commands, pad),
+        material_model=material.choice("model", LAWS, "stvk"),
+        element=block.choice("element", ("auto", *ELEMENTS), "auto"),
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)
+    if scenario.element == "hex8" and scenario.poisson >= AUTO_FBAR_POISSON:
+        warnings.warn(InputWarning(
+            f"block.element = \"hex8\" with material.poisson = {scenario.poisson:g} locks: its press force is "
+            f"several times too stiff as poisson -> 0.5 (9.5x at 0.499 on 4x4x2); use \"fbar\" or \"auto\""),
+            stacklevel=2)
     return scenario
 
 
