@@ -369,3 +369,14 @@ def test_simulate_names_the_material_limit(tmp_path, capsys):
     assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--quiet", "--no-recording"]) == 3
     err = capsys.readouterr().err
     assert "lost stability" in err and "neo_hookean" in err
+
+
+@pytest.mark.parametrize("element", ELEMENTS)
+def test_inverting_press_is_a_status_with_every_law(element):
+    """Pressed by more than its height, a Neo-Hookean block (whose energy has ln J)
+    ends the step as element_inverted, as StVK's does: a status, not an exception."""
+    model = Model(block_mesh(PRESS_SIZE, (2, 2, 1)), Material(*RUBBER, model="neo_hookean"), Friction(0.3, 0.3),
+                  element=element)
+    s0 = initial_state(model)
+    s1, rep = step(model, s0, Command(dz=-0.015))
+    assert rep.status is Status.ELEMENT_INVERTED and s1 is s0

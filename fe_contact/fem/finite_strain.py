@@ -33,6 +33,8 @@ N; element tangents (n_elems, 24, 24) N/m in the dof order ``3 a + i``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .material import energy_density, principal_stiffness, stress, stress_and_tangent
@@ -85,11 +87,12 @@ def element_energy(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool) 
 
 
 def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
-    """Element internal forces (n_elems, 8, 3), N, and the smallest ``det F``."""
+    """Element internal forces (n_elems, 8, 3), N, and the smallest ``det F``
+    (zero forces when it is <= 0: an inverted element has no energy)."""
     F, J, a = point_deformation(grad, dvol, Ue, fbar)
     min_det = float(J.min())
-    if not min_det > 0:
-        return np.full(Ue.shape, np.nan), min_det
+    if math.isfinite(min_det) and min_det <= 0:
+        return np.zeros(Ue.shape), min_det  # inverted: no energy (ln J); min_det says so
     Fb = a[..., None, None] * F
     S = stress(law, Fb, lam, mu)
     P = Fb @ S
@@ -127,7 +130,7 @@ def element_tangents(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool
     n_elems = grad.shape[0]
     K = np.empty((n_elems, 24, 24))
     if not min_det > 0:
-        K.fill(np.nan)
+        K.fill(0.0 if math.isfinite(min_det) else np.nan)
         return fe, K, min_det
     for start in range(0, n_elems, _CHUNK):
         part = slice(start, start + _CHUNK)

@@ -190,10 +190,10 @@ def _forces(model: Model, state: State, U: np.ndarray, need_tangent: bool, it: i
 
 def _breakdown(f_int: np.ndarray, min_det: float, it: int) -> tuple[Status, str] | None:
     """Status and message if the iterate is not a configuration to go on from."""
-    if min_det <= 0:  # (before the forces: a law with ln J has none there)
-        return Status.ELEMENT_INVERTED, f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}"
     if not np.all(np.isfinite(f_int)) or not math.isfinite(min_det):
         return Status.NOT_FINITE, f"non-finite internal force at Newton iteration {it}"
+    if min_det <= 0:
+        return Status.ELEMENT_INVERTED, f"element inverted (min det F = {min_det:.3g}) at Newton iteration {it}"
     return None
 
 
