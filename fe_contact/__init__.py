@@ -10,7 +10,9 @@ Public API::
     state, report = step(model, state, Command(dz=-1e-4))
     state, reports = run_release(model, state, Release("lift", 5), step, report)
 
-Beyond the paper: ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
+Beyond the paper: ``Material(E, nu, model="neo_hookean")`` a compressible
+Neo-Hookean law and ``Model(..., element="fbar")`` an element that does not lock
+(docs/materials.md); ``Material(E, nu, density)`` adds self-weight (eq. 3 body force),
 ``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper,
 ``Model(..., pad=Friction(...))`` a frictional gripper pad (a second contact body,
 :mod:`fe_contact.contact.bodies`), and :mod:`fe_contact.stepping.release` lets go of
