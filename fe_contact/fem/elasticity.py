@@ -53,9 +53,9 @@ class Material:
         0 (default) is the paper's weightless block.
     model : str
         Constitutive law, one of :data:`fe_contact.fem.material.LAWS`:
-        ``"stvk"`` (St Venant-Kirchhoff, the paper's, default) or
-        ``"neo_hookean"`` (compressible, for foam and rubber).  Both have the
-        small-strain moduli ``young`` and ``poisson``.
+        ``"stvk"`` (St Venant-Kirchhoff, the paper's, default),
+        ``"neo_hookean"`` (compressible, rubber and foam) or ``"hyperfoam"``
+        (Storakers' foam); all have the small-strain moduli ``young``, ``poisson``.
     """
 
     young: float

@@ -18,9 +18,20 @@ Continuum Mechanics for Finite Element Analysis*, 2nd ed. (2008), eq. (6.27-6.29
 
 with ``C = F^T F`` and ``J = det F``.  The volumetric term ``-mu ln J +
 lambda/2 (ln J)^2`` makes ``W -> inf`` as ``J -> 0``: no compression inverts
-it.  Both laws reduce to linear elasticity with the Lame parameters
-``lambda``, ``mu`` at small strain, so ``Material.young`` / ``poisson`` mean
-the same thing for both.
+it.
+
+``"hyperfoam"`` -- the Ogden-Hill compressible foam of Storakers (J. Mech.
+Phys. Solids 34 (1986) 125-145) with one term and exponent ``alpha = 2``:
+
+    W = mu/2 [tr C - 3 + (J^(-2 beta) - 1) / beta],    beta = nu / (1 - 2 nu),
+    S = mu (I - J^(-2 beta) C^-1),
+    D_IJKL = mu J^(-2 beta) [2 beta C^-1_IJ C^-1_KL + C^-1_IK C^-1_JL + C^-1_IL C^-1_JK].
+
+Its Poisson's ratio is ``nu`` at every strain in uniaxial stress, ``l_t =
+l^(-nu)`` (the foam's own ``beta``); at ``nu = 0`` it is the Neo-Hookean law
+with ``lambda = 0``.  All three laws reduce to linear elasticity with the Lame
+parameters ``lambda``, ``mu`` at small strain (``2 mu beta = lambda``), so
+``Material.young`` / ``poisson`` mean the same thing for all.
 
 Shapes: ``F`` is ``(..., 3, 3)``; ``S`` ``(..., 3, 3)`` Pa; ``D``
 ``(..., 3, 3, 3, 3)`` Pa; energies ``(...)`` J/m^3.
@@ -33,7 +44,7 @@ import numpy as np
 __all__ = ["LAWS", "check_law", "green_lagrange", "stress", "stress_and_tangent", "energy_density",
            "principal_stiffness"]
 
-LAWS = ("stvk", "neo_hookean")
+LAWS = ("stvk", "neo_hookean", "hyperfoam")
 """Names of the constitutive laws."""
 
 _I3 = np.eye(3)
@@ -85,7 +96,14 @@ def stress(law: str, F, lam: float, mu: float) -> np.ndarray:
         return lam * np.trace(E, axis1=-2, axis2=-1)[..., None, None] * _I3 + 2.0 * mu * E
     check_law(law)
     log_j, Ci = _log_j_and_cinv(F)
+    if law == "hyperfoam":
+        return mu * (_I3 - np.exp(-2.0 * _beta(lam, mu) * log_j)[..., None, None] * Ci)
     return mu * (_I3 - Ci) + lam * log_j[..., None, None] * Ci
+
+
+def _beta(lam: float, mu: float) -> float:
+    """The foam's ``beta = nu / (1 - 2 nu) = lambda / (2 mu)``."""
+    return lam / (2.0 * mu)
 
 
 def stress_and_tangent(law: str, F, lam: float, mu: float) -> tuple[np.ndarray, np.ndarray]:
@@ -97,8 +115,13 @@ def stress_and_tangent(law: str, F, lam: float, mu: float) -> tuple[np.ndarray, 
              + mu * (np.einsum("IK,JL->IJKL", _I3, _I3) + np.einsum("IL,JK->IJKL", _I3, _I3)))
         return S, np.broadcast_to(D, shape + (3, 3, 3, 3))
     log_j, Ci = _log_j_and_cinv(F)
-    coeff = (mu - lam * log_j)[..., None, None, None, None]
-    D = lam * np.einsum("...IJ,...KL->...IJKL", Ci, Ci) + coeff * (
+    if law == "hyperfoam":
+        beta = _beta(lam, mu)
+        scale, coeff = 2.0 * beta * mu * np.exp(-2.0 * beta * log_j), mu * np.exp(-2.0 * beta * log_j)
+    else:
+        scale, coeff = np.full(log_j.shape, lam), mu - lam * log_j
+    coeff = coeff[..., None, None, None, None]
+    D = scale[..., None, None, None, None] * np.einsum("...IJ,...KL->...IJKL", Ci, Ci) + coeff * (
         np.einsum("...IK,...JL->...IJKL", Ci, Ci) + np.einsum("...IL,...JK->...IJKL", Ci, Ci))
     return S, D
 
@@ -110,6 +133,10 @@ def energy_density(law: str, F, lam: float, mu: float) -> np.ndarray:
         return 0.5 * lam * np.trace(E, axis1=-2, axis2=-1) ** 2 + mu * np.einsum("...IJ,...IJ->...", E, E)
     check_law(law)
     log_j = np.log(_det(F))
+    if law == "hyperfoam":
+        beta = _beta(lam, mu)
+        volumetric = -2.0 * log_j if beta == 0 else np.expm1(-2.0 * beta * log_j) / beta
+        return 0.5 * mu * (np.einsum("...iI,...iI->...", F, F) - 3.0 + volumetric)
     return 0.5 * mu * (np.einsum("...iI,...iI->...", F, F) - 3.0) - mu * log_j + 0.5 * lam * log_j**2
 
 

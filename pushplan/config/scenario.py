@@ -14,7 +14,7 @@ A scenario reads::
     young = 210e9                             # Pa
     poisson = 0.3
     density = 0.0                             # optional, kg/m^3: self-weight (gravity 9.81 m/s^2 along -z)
-    model = "stvk"                            # optional: "stvk" (the paper's) or "neo_hookean" (foam, rubber)
+    model = "stvk"                            # optional: "stvk" (the paper's), "neo_hookean", "hyperfoam"
     [friction]
     mu_x = 0.3
     mu_y = 0.05
