@@ -354,8 +354,8 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     _warn_implausible("block.size", scenario.size)
     if scenario.element == "hex8" and scenario.poisson >= AUTO_FBAR_POISSON:
         warnings.warn(InputWarning(
-            f"block.element = \"hex8\" with material.poisson = {scenario.poisson:g} locks: its press force is "
-            f"several times too stiff as poisson -> 0.5 (9.5x at 0.499 on 4x4x2); use \"fbar\" or \"auto\""),
+            f"block.element = \"hex8\" with material.poisson = {scenario.poisson:g} locks: too stiff, the more so "
+            f"as poisson -> 0.5 (press force 9.5x the converged one at 0.499 on 4x4x2); use \"fbar\" or \"auto\""),
             stacklevel=2)
     return scenario
 
