@@ -393,3 +393,14 @@ def test_inverting_press_is_a_status_with_every_law(element):
     s0 = initial_state(model)
     s1, rep = step(model, s0, Command(dz=-0.015))
     assert rep.status is Status.ELEMENT_INVERTED and s1 is s0
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_stress_is_proportional_to_young_at_fixed_poisson(law):
+    """What a fit of ``young`` relies on: S(F; 2E, nu) = 2 S(F; E, nu) for every law."""
+    F = np.eye(3) + 0.3 * np.random.default_rng(8).standard_normal((3, 3))
+    F *= np.sign(np.linalg.det(F))
+    one, two = Material(1e6, 0.3), Material(2e6, 0.3)
+    s1 = stress(law, F, one.lame_lambda, one.lame_mu)
+    np.testing.assert_allclose(stress(law, F, two.lame_lambda, two.lame_mu), 2 * s1, rtol=IMPL_RTOL,
+                               atol=IMPL_RTOL * np.abs(s1).max())
