@@ -177,7 +177,7 @@ class Model:
     element: str = "auto"
     """Element formulation (:data:`fe_contact.fem.finite_strain.ELEMENTS`):
     ``"hex8"``, ``"fbar"`` (does not lock as nu -> 0.5), or ``"auto"`` (F-bar for
-    ``poisson >= AUTO_FBAR_POISSON``, 0.45); the resolved name after construction."""
+    ``poisson > AUTO_FBAR_POISSON``, 0.45); the resolved name after construction."""
     contacts: ContactSet = field(init=False, repr=False)
     """Every contact body's contacts (the floor's first, then the pad's)."""
     contact_dofs: np.ndarray = field(init=False, repr=False)
