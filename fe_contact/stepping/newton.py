@@ -151,8 +151,7 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         U_flat[model.free_dofs] += dU_free
         U = U_flat.reshape(-1, 3)
         r = np.array(local.r, dtype=float)
-    if status is not Status.CONVERGED:
-        status, message = _named_cause(model, state, U, status, message)
+    status, message = _named_cause(model, state, U, status, message)
     cached = tangent.with_workspace(workspace) if model.reuses_tangent and tangent is not None else None
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
@@ -161,6 +160,8 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
 def _named_cause(model: Model, state: State, U: np.ndarray, status: Status, message: str) -> tuple[Status, str]:
     """A failure's cause named when it is the material law's: past its stable
     range at the step's start or its last iterate (StVK in compression)."""
+    if status is Status.CONVERGED:
+        return status, message
     limit = (material_limit(model.geometry, model.mesh.elements, state.displacement, model.material,
                             "at the start of the step")
              or material_limit(model.geometry, model.mesh.elements, U, model.material, "at the last iterate"))

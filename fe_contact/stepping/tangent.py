@@ -321,7 +321,7 @@ def _supported_tangent(model: Model, state: State, loading, timings: dict) -> Ta
     """
     t0 = time.perf_counter()
     _, K, _ = (loading or NO_LOADING).tangent(model, state.displacement)
-    contact = model.diagonal[model.lower_dofs.ravel()]
+    contact = model.diagonal[model.contact_dofs.ravel()]
     K.data[contact] += np.mean(K.data[contact])
     dt = time.perf_counter() - t0
     timings["assembly"] += dt
