@@ -29,6 +29,7 @@ A test case per block, its id ``file:line`` (the line of the opening fence); new
 
 from __future__ import annotations
 
+import importlib
 import os
 import re
 import subprocess
@@ -137,6 +138,36 @@ def test_relative_links_resolve(page):
                if "://" not in m["target"] and not m["target"].startswith("mailto:")
                and not (page.parent / m["target"]).exists()]
     assert not missing, f"{_rel(page)}: links to missing files {missing}"
+
+
+NAMED_FILE = re.compile(r"`(?P<path>(?:fe_contact|pushplan|benchmarks|tests|scenarios)/[\w/.-]+\.(?:py|toml|xml|json))")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_named_files_exist(page):
+    """Files of the repository named in backticks (``fe_contact/fem/mesh.py``) exist."""
+    missing = sorted({m["path"] for m in NAMED_FILE.finditer(page.read_text())
+                      if not (ROOT / m["path"]).exists() and not (ROOT / "benchmarks" / "results" / m["path"]).exists()})
+    assert not missing, f"{_rel(page)}: names files that do not exist {missing}"
+
+
+def test_architecture_map_names_what_exists():
+    """Each ``module.py`: `name`, ...`` of the README's equation table is an attribute of that
+    module (or of a class in it)."""
+    rows = [line for line in (ROOT / "README.md").read_text().splitlines()
+            if line.startswith("| ") and "`fe_contact/" in line]
+    assert len(rows) >= 10
+    missing = []
+    for row in rows:
+        for part in row.split("|")[2].split(";"):
+            m = re.search(r"`(?P<module>fe_contact/[\w/]+)\.py`(?::(?P<names>.*))?", part)
+            if m is None:
+                continue
+            module = importlib.import_module(m["module"].replace("/", "."))
+            classes = [v for v in vars(module).values() if isinstance(v, type)]
+            missing += [f"{m['module']}.{name}" for name in re.findall(r"`(\w+)`", m["names"] or "")
+                        if not hasattr(module, name) and not any(hasattr(c, name) for c in classes)]
+    assert not missing, f"README's architecture map names what does not exist: {missing}"
 
 
 def test_readme_is_a_front_door():
