@@ -10,10 +10,12 @@ Convention, by the info string of a fenced block (the text after the opening thr
     the repository root, the venv's ``bin`` first on ``PATH`` (so ``pushplan`` is this
     checkout's).
 ``python slow``, ``sh slow``
-    The same, run only under ``pytest -m slow``: examples that take minutes (``make demo``,
-    the full paper reproduction).  Everything else must be fast: the default examples
-    together take well under a minute on two cores, so a page shows a coarse-mesh variant
-    of a long command and states the full one in the text.
+    The same, run only under ``pytest -m slow``: examples that take minutes on the
+    shipped meshes (the paper's mesh, the 90-case sweep, the planner's verification mesh).
+    The README's first block, ``make demo`` and ``make test``, is one of them: it writes
+    ``out/`` in the repository (ignored by git) and runs the whole default suite.
+    Everything else must be fast: the default examples together take well under a minute
+    on two cores, so a page shows a coarse-mesh variant of a long command first.
 ``text``, ``toml``, ``json``, ``csv``, ``xml``
     Shown, not run.  ``toml`` blocks must parse (``tomllib``).
 anything else, or no info string
