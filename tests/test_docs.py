@@ -41,6 +41,9 @@ from pathlib import Path
 
 import pytest
 
+from pushplan.config import parse_scenario
+from pushplan.errors import InputError
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 RUN = {"python", "sh"}
@@ -121,12 +124,19 @@ def test_every_block_says_whether_it_runs(page):
 
 @pytest.mark.parametrize("page", PAGES, ids=_rel)
 def test_toml_blocks_parse(page):
+    """``toml`` blocks parse; one that is a whole scenario ([block], [material], [friction])
+    is a valid scenario."""
     for line, info, code in blocks(page):
         if info == "toml":
             try:
-                tomllib.loads(code)
+                data = tomllib.loads(code)
             except tomllib.TOMLDecodeError as e:
                 raise AssertionError(f"{_rel(page)}:{line}: {e}") from None
+            if {"block", "material", "friction"} <= set(data):
+                try:
+                    parse_scenario(data)
+                except InputError as e:
+                    raise AssertionError(f"{_rel(page)}:{line}: not a valid scenario: {e}") from None
 
 
 LINK = re.compile(r"\]\((?P<target>[^)\s#]+)(?:#[^)]*)?\)")
