@@ -9,7 +9,7 @@ The truth is the steel block of the planning scenarios (20 x 20 x 10 mm, pressed
 0.1 mm) on mu_x = 0.32, mu_y = 0.18 with t_x at 25 deg; observations come from
 ``pushplan simulate --observations`` with Gaussian noise of 1 um on the pose and 1 %
 on each force component; ``pushplan identify`` starts from an isotropic guess
-(0.25, 0.25, 0 deg).  Prints the table of the README, writes
+(0.25, 0.25, 0 deg).  Prints the table of docs/identification.md, writes
 ``benchmarks/results/identify.json`` and ``docs/figures/identified_friction_ellipse.png``.
 """
 

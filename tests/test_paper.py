@@ -99,8 +99,8 @@ def test_command_runs_all_cases(run):
 
 
 def test_claims_are_printed_as_findings_not_errors(run):
-    """A claim the run does not reproduce is a finding of the study (the README discusses
-    it), printed as such: no capitals, no 'NOT'."""
+    """A claim the run does not reproduce is a finding of the study (discussed in
+    docs/paper-reproduction.md), printed as such: no capitals, no 'NOT'."""
     lines = [line for line in run.stdout.splitlines() if line.startswith("claim ")]
     assert len(lines) == len(run.report["claims"])
     for line, (key, claim) in zip(lines, run.report["claims"].items()):

@@ -73,7 +73,7 @@ def register(subparsers) -> None:
     p.add_argument("--local-method", choices=LOCAL_METHODS,
                    help="local contact solver (default: the scenarios'; the paper's is uzawa)")
     p.add_argument("--docs", metavar="DIR",
-                   help="also copy the PNGs into DIR (the README's figures: --docs docs/figures)")
+                   help="also copy the PNGs into DIR (the documentation's figures: --docs docs/figures)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_memory_flag(p)
     p.set_defaults(func=cmd_paper)

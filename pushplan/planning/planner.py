@@ -1,7 +1,7 @@
 """The planning loop: upper-face commands that bring the block's lower face to a
 target pose, planned on a reduced model and corrected with FE rollouts.
 
-Strategy (the README explains why):
+Strategy (docs/planning.md explains why):
 
 1. Calibrate :mod:`.reduced_model` from FE rollouts on the coarse planning mesh:
    the naive push (also the baseline) gives the shear compliance and the normal

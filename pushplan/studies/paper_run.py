@@ -72,7 +72,7 @@ def run_paper(out, elements=None, quadrature=None, local_method=None, docs_dir=N
     local_method : str, optional
         Local contact solver override (``"uzawa"``, as in the paper, or ``"newton"``).
     docs_dir : path, optional
-        Also copy the PNGs there (the README's figures: ``docs/figures``).
+        Also copy the PNGs there (the documentation's figures: ``docs/figures``).
     progress : bool
         Progress bars on stderr.
 

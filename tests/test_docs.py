@@ -1,0 +1,201 @@
+"""Every example in ``README.md`` and ``docs/*.md`` runs (as scikit-fem runs its examples).
+
+Convention, by the info string of a fenced block (the text after the opening three backticks):
+
+``python``
+    Run by the venv's Python in a subprocess, working directory and ``PYTHONPATH`` the
+    repository root.
+``sh``
+    Run by ``bash -e`` (the first failing command fails the example), working directory
+    the repository root, the venv's ``bin`` first on ``PATH`` (so ``pushplan`` is this
+    checkout's).
+``python slow``, ``sh slow``
+    The same, run only under ``pytest -m slow``: examples that take minutes on the
+    shipped meshes (the paper's mesh, the 90-case sweep, the planner's verification mesh).
+    The README's first block, ``make demo`` and ``make test``, is one of them: it writes
+    ``out/`` in the repository (ignored by git) and runs the whole default suite.
+    Everything else must be fast: the default examples together take well under a minute
+    on two cores, so a page shows a coarse-mesh variant of a long command first.
+``text``, ``toml``, ``json``, ``csv``, ``xml``
+    Shown, not run.  ``toml`` blocks must parse (``tomllib``).
+anything else, or no info string
+    An error (``test_every_block_says_whether_it_runs``): an example must not be skipped
+    silently; write ``sh`` rather than ``bash``.
+
+Every block runs alone, in a fresh process: it sets up what it needs.  Examples write
+their outputs under a temporary folder, ``out=$(mktemp -d)`` in ``sh`` and ``tempfile``
+in ``python``; ``TMPDIR`` points at the test's own ``tmp_path``, so nothing is left behind.
+A test case per block, its id ``file:line`` (the line of the opening fence); new pages in
+``docs/`` are picked up without editing this module.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from pushplan.config import parse_scenario
+from pushplan.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+RUN = {"python", "sh"}
+SHOWN = {"text", "toml", "json", "csv", "xml"}
+SLOW = "slow"
+TIMEOUT_S = 120  # one fast example; each takes seconds
+SLOW_TIMEOUT_S = 3600
+README_MAX_LINES = 250
+FENCE = re.compile(r"^(?P<indent> *)(?P<fence>`{3,})(?P<info>[^`]*)$")
+
+
+def blocks(page: Path):
+    """Fenced blocks of a Markdown page: (line of the opening fence, info string, code)."""
+    found, lines, i = [], page.read_text().splitlines(), 0
+    while i < len(lines):
+        m = FENCE.match(lines[i])
+        if m is None:
+            i += 1
+            continue
+        start, indent, fence, body = i + 1, len(m["indent"]), m["fence"], []
+        i += 1
+        while i < len(lines) and not re.match(rf"^ *{fence}\s*$", lines[i]):
+            body.append(lines[i][indent:] if lines[i][:indent].strip() == "" else lines[i])
+            i += 1
+        if i == len(lines):
+            raise AssertionError(f"{page.name}:{start}: fenced block never closed")
+        found.append((start, m["info"].strip(), "\n".join(body) + "\n"))
+        i += 1
+    return found
+
+
+def _rel(page: Path) -> str:
+    return str(page.relative_to(ROOT))
+
+
+ALL = [(page, line, info, code) for page in PAGES for line, info, code in blocks(page)]
+
+
+def _examples():
+    for page, line, info, code in ALL:
+        words = info.split()
+        if not words or words[0] not in RUN:
+            continue
+        marks = [pytest.mark.slow] if SLOW in words[1:] else []
+        yield pytest.param(words[0], code, id=f"{_rel(page)}:{line}", marks=marks)
+
+
+def _environment(tmp_path: Path) -> dict:
+    env = dict(os.environ)
+    env["PATH"] = str(Path(sys.executable).parent) + os.pathsep + env.get("PATH", "")
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["TMPDIR"] = str(tmp_path)
+    env.setdefault("MPLBACKEND", "Agg")
+    return env
+
+
+@pytest.mark.parametrize("language, code", list(_examples()))
+def test_example_runs(language, code, tmp_path, request):
+    script = tmp_path / ("example.py" if language == "python" else "example.sh")
+    script.write_text(code)
+    command = [sys.executable, str(script)] if language == "python" else ["bash", "-e", str(script)]
+    slow = request.node.get_closest_marker("slow") is not None
+    done = subprocess.run(command, cwd=ROOT, env=_environment(tmp_path), capture_output=True, text=True,
+                          timeout=SLOW_TIMEOUT_S if slow else TIMEOUT_S)
+    assert done.returncode == 0, (f"exit {done.returncode}\n--- stdout\n{done.stdout[-4000:]}"
+                                  f"\n--- stderr\n{done.stderr[-4000:]}")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_every_block_says_whether_it_runs(page):
+    for line, info, _ in blocks(page):
+        words = info.split()
+        assert words, f"{_rel(page)}:{line}: a fenced block without an info string (python, sh, text, toml, ...)"
+        assert (words[0] in RUN and set(words[1:]) <= {SLOW}) or (words[0] in SHOWN and len(words) == 1), \
+            f"{_rel(page)}:{line}: info string {info!r} is neither run ({sorted(RUN)}, '... slow') nor shown " \
+            f"({sorted(SHOWN)})"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_toml_blocks_parse(page):
+    """``toml`` blocks parse; one that is a whole scenario ([block], [material], [friction])
+    is a valid scenario."""
+    for line, info, code in blocks(page):
+        if info == "toml":
+            try:
+                data = tomllib.loads(code)
+            except tomllib.TOMLDecodeError as e:
+                raise AssertionError(f"{_rel(page)}:{line}: {e}") from None
+            if {"block", "material", "friction"} <= set(data):
+                try:
+                    parse_scenario(data)
+                except InputError as e:
+                    raise AssertionError(f"{_rel(page)}:{line}: not a valid scenario: {e}") from None
+
+
+LINK = re.compile(r"\]\((?P<target>[^)\s#]+)(?:#[^)]*)?\)")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_relative_links_resolve(page):
+    """Links and pictures to files of the repository point at files that exist."""
+    text = re.sub(r"(?ms)^ *```.*?^ *```", "", page.read_text())  # not inside code blocks
+    missing = [m["target"] for m in LINK.finditer(text)
+               if "://" not in m["target"] and not m["target"].startswith("mailto:")
+               and not (page.parent / m["target"]).exists()]
+    assert not missing, f"{_rel(page)}: links to missing files {missing}"
+
+
+NAMED_FILE = re.compile(r"`(?P<path>(?:fe_contact|pushplan|benchmarks|tests|scenarios)/[\w/.-]+\.(?:py|toml|xml|json))")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_named_files_exist(page):
+    """Files of the repository named in backticks (``fe_contact/fem/mesh.py``) exist."""
+    missing = sorted({m["path"] for m in NAMED_FILE.finditer(page.read_text())
+                      if not (ROOT / m["path"]).exists() and not (ROOT / "benchmarks" / "results" / m["path"]).exists()})
+    assert not missing, f"{_rel(page)}: names files that do not exist {missing}"
+
+
+def test_architecture_map_names_what_exists():
+    """Each ``module.py`: `name`, ...`` of the README's equation table is an attribute of that
+    module (or of a class in it)."""
+    rows = [line for line in (ROOT / "README.md").read_text().splitlines()
+            if line.startswith("| ") and "`fe_contact/" in line]
+    assert len(rows) >= 10
+    missing = []
+    for row in rows:
+        for part in row.split("|")[2].split(";"):
+            m = re.search(r"`(?P<module>fe_contact/[\w/]+)\.py`(?::(?P<names>.*))?", part)
+            if m is None:
+                continue
+            module = importlib.import_module(m["module"].replace("/", "."))
+            classes = [v for v in vars(module).values() if isinstance(v, type)]
+            missing += [f"{m['module']}.{name}" for name in re.findall(r"`(\w+)`", m["names"] or "")
+                        if not hasattr(module, name) and not any(hasattr(c, name) for c in classes)]
+    assert not missing, f"README's architecture map names what does not exist: {missing}"
+
+
+def test_readme_is_a_front_door():
+    """At most ~250 lines, the two commands first (``.ci/run`` calls ``make test``)."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= README_MAX_LINES
+    first = next(code for _, info, code in blocks(ROOT / "README.md"))
+    assert [line.split("#")[0].strip() for line in first.splitlines()] == ["make demo", "make test"]
+    assert "make test" in (ROOT / ".ci" / "run").read_text()
+    makefile = (ROOT / "Makefile").read_text()
+    assert re.search(r"^demo:", makefile, re.M) and re.search(r"^test:", makefile, re.M)
+
+
+def test_the_extractor_sees_every_kind_of_block(tmp_path):
+    """The parser itself: indented fences, longer fences, info strings with words."""
+    page = tmp_path / "p.md"
+    page.write_text("x\n```sh\necho a\n```\n- item\n\n  ```python slow\n  print(1)\n  ```\n"
+                    "````text\n```\n````\n")
+    assert blocks(page) == [(2, "sh", "echo a\n"), (7, "python slow", "print(1)\n"), (10, "text", "```\n")]
