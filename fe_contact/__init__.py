@@ -53,6 +53,7 @@ from .stepping.model import (
     initial_state,
 )
 from .stepping.release import Release, ReleaseSchedule, Rest, release_to_rest, rest_check, run_release
+from .stepping.derivatives import RolloutDerivatives, check_derivatives, rollout_derivatives
 from .stepping.step import run, step
 from .stepping.warmup import warm_up
 from .linalg.threads import limit_blas_threads
@@ -72,6 +73,7 @@ __all__ = [
     "Release",
     "ReleaseSchedule",
     "Rest",
+    "RolloutDerivatives",
     "SolverOptions",
     "State",
     "Status",
@@ -79,10 +81,12 @@ __all__ = [
     "TangentCache",
     "block_mesh",
     "build_model",
+    "check_derivatives",
     "initial_state",
     "project_elliptic_cone",
     "release_to_rest",
     "rest_check",
+    "rollout_derivatives",
     "run",
     "run_release",
     "solve_local",

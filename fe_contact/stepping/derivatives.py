@@ -1,0 +1,335 @@
+"""Exact derivatives of a rollout: forward (tangent) propagation of the
+held-step sensitivities of :mod:`fe_contact.stepping.sensitivity` through a
+sequence of steps, and their check against central differences.
+
+Inputs (columns): the components ``(dx, dy, dz, dtheta)`` of every command
+(m, rad) and the parameters :data:`PARAMETERS` (``mu_x``, ``mu_y`` -,
+``angle`` rad, ``young`` Pa, ``poisson`` -, ``density`` kg/m^3,
+``stiffness_xy`` N/m, ``stiffness_yaw`` N m/rad).  Outputs (rows) after every
+step: :data:`OUTPUTS`, the lower face's pose ``(x, y, yaw)`` (centroid
+displacement, m, best-fit yaw, rad), the force the upper-face drive applies
+(N, world) and the plate's in-plane pose (m, rad; the commanded one for a
+rigid drive).  A step depends on the previous one through its start
+displacements (the slip increment of the friction law), so the state
+derivative ``dU/d(input)`` (n_dofs, J) is carried from step to step, each
+step costing one tangent factorisation at the converged configuration (handed
+on as the next step's cached tangent, so a plain step would have built it
+too) and two back-substitutions per input.
+
+The compliant gripper (:mod:`fe_contact.stepping.gripper`) solves the plate
+balance ``g(p) = F(p) - k (c - p) = 0``; differentiating it,
+
+    (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p,
+
+with ``dF/dp`` from three more directions of the same held step.  Release
+steps (``open > 0``) are not differentiated.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..fem.loads import Gripper
+from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
+from .predictor import commanded_pose
+from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
+from .step import step
+
+COMPONENTS = ("dx", "dy", "dz", "dtheta")
+PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density", "stiffness_xy", "stiffness_yaw")
+OUTPUTS = ("lower_x", "lower_y", "lower_yaw", "force_x", "force_y", "force_z", "plate_x", "plate_y", "plate_yaw")
+
+
+@dataclass(frozen=True)
+class RolloutDerivatives:
+    """A rollout's outputs and their exact derivatives.
+
+    Attributes
+    ----------
+    status : Status
+        CONVERGED, or the status of the step that failed (then the arrays
+        hold the steps before it).
+    message : str
+    outputs : ndarray, shape (n_steps, 9)
+        :data:`OUTPUTS` after each step (SI, rad).
+    d_commands : ndarray, shape (n_steps, 9, n_steps, 4)
+        ``d outputs[k, i] / d commands[j, c]`` (zero for ``j > k``).
+    d_parameters : ndarray, shape (n_steps, 9, n_parameters)
+        Derivatives with respect to ``parameters``.
+    parameters : tuple of str
+    state : State
+        Final state.
+    reports : tuple of StepReport
+    wall_time : float
+        s.
+    """
+
+    status: Status
+    message: str
+    outputs: np.ndarray
+    d_commands: np.ndarray
+    d_parameters: np.ndarray
+    parameters: tuple
+    state: State
+    reports: tuple
+    wall_time: float
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
+
+    def jacobian(self) -> np.ndarray:
+        """All derivatives as one matrix (n_steps * 9, n_steps * 4 + n_parameters),
+        rows step-major, columns the commands step-major then the parameters."""
+        K = self.outputs.shape[0]
+        return np.hstack([self.d_commands.reshape(K * 9, -1), self.d_parameters.reshape(K * 9, -1)])
+
+
+def applicable_parameters(model: Model) -> tuple[str, ...]:
+    """The parameters with a two-sided derivative: the gripper's stiffnesses only
+    for a compliant gripper, the density only if > 0."""
+    out = list(PARAMETERS[:5])
+    if model.material.density > 0:
+        out.append("density")
+    if not model.gripper.rigid:
+        out += ["stiffness_xy", "stiffness_yaw"]
+    return tuple(out)
+
+
+def parameter_values(model: Model) -> dict:
+    """The model's values of :data:`PARAMETERS` (SI, rad)."""
+    f, m, g = model.friction, model.material, model.gripper
+    return {"mu_x": f.mu_x, "mu_y": f.mu_y, "angle": f.angle, "young": m.young, "poisson": m.poisson,
+            "density": m.density, "stiffness_xy": g.stiffness_xy, "stiffness_yaw": g.stiffness_yaw}
+
+
+def with_parameters(model: Model, **values) -> Model:
+    """``model`` with some :data:`PARAMETERS` changed (a new Model, same mesh and options)."""
+    unknown = set(values) - set(PARAMETERS)
+    if unknown:
+        raise ValueError(f"unknown parameter {sorted(unknown)[0]!r}; choose from {PARAMETERS}")
+    v = {**parameter_values(model), **values}
+    return replace(model, friction=Friction(v["mu_x"], v["mu_y"], v["angle"]),
+                   material=replace(model.material, young=v["young"], poisson=v["poisson"], density=v["density"]),
+                   gripper=Gripper(v["stiffness_xy"], v["stiffness_yaw"]))
+
+
+def _check(model, commands, parameters) -> tuple[list, tuple]:
+    if not isinstance(model, Model):
+        raise ValueError(f"model must be a Model, got {type(model).__name__}")
+    commands = list(commands)
+    for k, c in enumerate(commands):
+        if not isinstance(c, Command):
+            raise ValueError(f"commands[{k}] must be a Command, got {type(c).__name__}")
+        if c.open > 0:
+            raise ValueError(f"commands[{k}] opens the gripper: release steps are not differentiated")
+    parameters = applicable_parameters(model) if parameters is None else tuple(parameters)
+    for p in parameters:
+        if p not in PARAMETERS:
+            raise ValueError(f"unknown parameter {p!r}; choose from {PARAMETERS}")
+        if p.startswith("stiffness") and model.gripper.rigid:
+            raise ValueError(f"{p} has no derivative with a rigid gripper (stiffness inf)")
+    return commands, parameters
+
+
+def rollout_derivatives(model: Model, commands, state: State | None = None,
+                        parameters=None) -> RolloutDerivatives:
+    """Run ``commands`` from ``state`` (default: the undeformed block) and
+    differentiate every output of every step (module docstring).
+
+    ``state`` is held fixed: its own dependence on the parameters (if it came
+    from earlier steps of this model) is not included.
+
+    Raises
+    ------
+    ValueError
+        Not a Model or Commands, a release command, an unknown parameter, or
+        a gripper stiffness with a rigid gripper.
+    """
+    commands, parameters = _check(model, commands, parameters)
+    t0 = time.perf_counter()
+    state = initial_state(model) if state is None else state
+    K, n_par = len(commands), len(parameters)
+    J = 4 * K + n_par
+    seeds = np.zeros((len(PARAMETERS), J))  # d parameter / d input
+    for j, p in enumerate(parameters):
+        seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
+    d_state = _StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
+    outputs, d_out, reports = np.zeros((K, 9)), np.zeros((K, 9, J)), []
+    status, message = Status.CONVERGED, ""
+    for k, command in enumerate(commands):
+        d_command = np.zeros((4, J))
+        d_command[:, 4 * k:4 * k + 4] = np.eye(4)
+        result = _step_derivative(model, state, command, d_state, d_command, seeds)
+        if isinstance(result[0], Status):
+            status, message = result
+            break
+        state, report, d_state, outputs[k], d_out[k] = result
+        reports.append(report)
+    n = len(reports)
+    return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
+                              d_out[:n, :, 4 * K:], parameters, state, tuple(reports), time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class _StateDerivative:
+    """``dU`` (n_dofs, J), the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J)
+    and the plate pose (3, J) of a state."""
+
+    displacement: np.ndarray
+    pose: np.ndarray
+    plate: np.ndarray
+
+
+def _step_derivative(model, state, command, d_state, d_command, seeds):
+    """One step and its derivatives: (state, report, d_state, outputs (9,),
+    d_outputs (9, J)), or (status, message) if the step or its linearisation failed."""
+    new_state, report = step(model, state, command)
+    if not report.converged:
+        return report.status, f"step {state.step_index + 1}: {report.message}"
+    translation, rotation = commanded_pose(state, command)
+    d_pose = d_state.pose + d_command
+    lin = HeldLinearisation(model, state.displacement, report.displacement, report.reaction_local,
+                            report.node_status)
+    if lin.failure:
+        return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
+    J = d_pose.shape[1]
+    if model.gripper.rigid:
+        d_upper = upper_pose_jacobian(model, rotation) @ d_pose
+        held = lin.solve(d_state.displacement, d_upper, seeds[:6])
+        dU, d_force, d_plate = held.displacement, held.upper_force, d_pose[[0, 1, 3]]
+    else:
+        dU, d_force, d_plate = _compliant(model, state, report, lin, d_state, d_pose, seeds,
+                                          np.array([translation[0], translation[1], rotation]))
+    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), d_force.sum(axis=0), d_plate])
+    outputs = _report_outputs(report, new_state)
+    new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
+    return new_state, report, _StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
+
+
+def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):
+    """Derivatives of a compliant-gripper step: the plate balance solved for ``dp``."""
+    J = d_pose.shape[1]
+    p = np.array(report.plate)
+    Jp = upper_pose_jacobian(model, float(p[2]))  # (3 n_up, 4)
+    zeros = np.zeros
+    d_upper = np.hstack([np.outer(Jp[:, 2], d_pose[2]), Jp[:, [0, 1, 3]]])
+    d_start = np.hstack([d_state.displacement, zeros((model.mesh.n_dofs, 3))])
+    held = lin.solve(d_start, d_upper, np.hstack([seeds[:6], zeros((6, 3))]))
+    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
+    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
+    k = model.gripper.stiffness
+    dk = np.vstack([seeds[6], seeds[6], seeds[7]])
+    dc = d_pose[[0, 1, 3]]
+    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * dc + (c - p)[:, None] * dk - dF[:, :J])
+    dU = held.displacement[:, :J] + held.displacement[:, J:] @ dp
+    d_force = held.upper_force[:, :, :J] + held.upper_force[:, :, J:] @ dp
+    return dU, d_force, dp
+
+
+@dataclass(frozen=True)
+class DerivativeCheck:
+    """Exact derivatives against central differences (:func:`check_derivatives`).
+
+    ``analytic``, ``numeric`` (n_steps * 9, n_inputs) as :meth:`RolloutDerivatives.jacobian`;
+    ``error`` the entrywise relative error of the normalised Jacobian; ``inputs``,
+    ``outputs`` the column and row names; ``steps`` the central-difference steps.
+    """
+
+    analytic: np.ndarray
+    numeric: np.ndarray
+    error: np.ndarray
+    inputs: tuple
+    outputs: tuple
+    steps: np.ndarray
+
+    @property
+    def max_error(self) -> float:
+        return float(self.error.max()) if self.error.size else 0.0
+
+    def worst(self) -> str:
+        i, j = np.unravel_index(int(np.argmax(self.error)), self.error.shape)
+        return (f"{self.outputs[i]} / {self.inputs[j]}: exact {self.analytic[i, j]:.9g}, "
+                f"central difference {self.numeric[i, j]:.9g} (error {self.error[i, j]:.2g})")
+
+
+def check_derivatives(model: Model, commands, state: State | None = None, parameters=None,
+                      rel_step: float = 1e-5, floor: float = 1e-4) -> DerivativeCheck:
+    """Compare :func:`rollout_derivatives` with central differences of rollouts
+    (as MuJoCo's ``check_derivatives``).
+
+    Input ``j`` is stepped by ``h_j = rel_step * s_j``, ``s_j`` its typical
+    size (the largest command translation or rotation, ``|value|`` of a
+    parameter, 1 rad for the angle).  The Jacobian is normalised, ``J_ij s_j /
+    o_i`` (``o_i`` the largest value of output kind ``i`` over the rollout:
+    lengths, angles, forces), and the error of an entry is ``|exact - central|
+    / max(|central|, floor * max |central|)``: entries far below the dominant
+    sensitivity are compared at ``floor`` of it.  (Lengths are scaled by at
+    least the largest command translation, angles by at least that over the
+    block's size.)
+
+    Raises
+    ------
+    ValueError
+        As :func:`rollout_derivatives`, or a rollout that does not converge.
+    """
+    commands, parameters = _check(model, commands, parameters)
+    exact = rollout_derivatives(model, commands, state, parameters)
+    if not exact.converged:
+        raise ValueError(f"the rollout does not converge: {exact.message}")
+    arr = np.array([[c.dx, c.dy, c.dz, c.dtheta] for c in commands])
+    size = max(model.mesh.size)
+    move = max(float(np.abs(arr[:, :3]).max()), size * 1e-4)
+    turn = max(float(np.abs(arr[:, 3]).max()), move / size)
+    values = parameter_values(model)
+    typical = [move, move, move, turn] * len(commands) + [1.0 if p == "angle" else abs(values[p])
+                                                          for p in parameters]
+    typical = np.array(typical)
+    steps = rel_step * typical
+
+    def outputs(j, h):
+        cmds, mdl = list(commands), model
+        if j < 4 * len(commands):
+            k, c = divmod(j, 4)
+            cmds[k] = replace(cmds[k], **{COMPONENTS[c]: getattr(cmds[k], COMPONENTS[c]) + h})
+        else:
+            p = parameters[j - 4 * len(commands)]
+            mdl = with_parameters(model, **{p: values[p] + h})
+        return _plain(mdl, cmds, state)
+
+    numeric = np.column_stack([(outputs(j, h) - outputs(j, -h)).ravel() / (2 * h) for j, h in enumerate(steps)])
+    analytic = exact.jacobian()
+    o = np.abs(exact.outputs)
+    kind = np.array([0, 0, 1, 2, 2, 2, 0, 0, 1])
+    scale = np.maximum([o[:, kind == g].max() for g in range(3)], [move, move / size, 1e-300])[kind]
+    norm = np.tile(scale, len(commands))[:, None]
+    A, N = analytic * typical / norm, numeric * typical / norm
+    err = np.abs(A - N) / np.maximum(np.abs(N), floor * np.abs(N).max())
+    names_in = tuple(f"{c}[{k}]" for k in range(len(commands)) for c in COMPONENTS) + tuple(parameters)
+    names_out = tuple(f"{o}[{k}]" for k in range(len(commands)) for o in OUTPUTS)
+    return DerivativeCheck(analytic, numeric, err, names_in, names_out, steps)
+
+
+def _plain(model, commands, state) -> np.ndarray:
+    """Outputs (n_steps, 9) of a plain rollout; ValueError if a step fails."""
+    state = initial_state(model) if state is None else replace(state, tangent=None)
+    out = []
+    for k, command in enumerate(commands):
+        state, report = step(model, state, command)
+        if not report.converged:
+            raise ValueError(f"central difference: step {k + 1} did not converge: {report.message}")
+        out.append(_report_outputs(report, state))
+    return np.array(out)
+
+
+def _report_outputs(report: StepReport, state: State) -> np.ndarray:
+    """:data:`OUTPUTS` of a converged step (9,) ending in ``state`` (the plate
+    pose of the state: a rigid drive's report carries the start's)."""
+    return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])
+
+
+__all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "DerivativeCheck", "applicable_parameters",
+           "check_derivatives", "parameter_values", "rollout_derivatives", "with_parameters"]

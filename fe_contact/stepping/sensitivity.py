@@ -1,0 +1,242 @@
+"""Sensitivities of a converged held step by the implicit function theorem.
+
+At the end of a step from displacements ``U_0`` with the upper face held at
+the pose ``(t, theta)``, the free dofs ``U_f`` and the contact forces ``r``
+(n, 3) local satisfy the equilibrium of the free dofs and the contact law
+(paper eq. 42-45, sect. 8):
+
+    R = f_int(U; E, nu)_f - f_ext(rho)_f - C^T T(alpha)^T r = 0,
+    law(r, u; mu) = 0,    u = T(alpha) w,   w = (U_c - U_0c)_xy, Z_c + U_cz,
+
+``U_p`` (upper face) given by the pose, ``C`` picking the contact dofs out of
+the free ones, ``T`` the world -> local contact frame of orthotropy angle
+``alpha``.  Differentiating both with respect to an input (a pose
+component, a parameter, the start ``U_0``):
+
+    K_ff dU_f = C^T (T^T dr + dT^T r) - K_fp dU_p - d_p(f_int - f_ext)_f      (1)
+    du        = W dr + dq,   dq = T (db_c - dw_0) + dT w                         (2)
+    A dr + B du + B_mu dmu = 0   (:func:`fe_contact.contact.law_jacobian.law_jacobian`)  (3)
+
+with ``db = K_ff^-1 (rhs of (1) without T^T dr)``, ``W = T C K_ff^-1 C^T T^T``
+the flexibility matrix and ``K`` the consistent tangent (material and
+geometric stiffness) at the converged ``U``.  (2) into (3) gives the
+condensed system ``(A + B W) dr = -B dq - B_mu dmu`` (3n, 3n): one dense LU
+per step; then ``dU_f = db + K_ff^-1 C^T T^T dr``.  The tangent ``K_ff`` is
+factorised once per step (:class:`~fe_contact.stepping.tangent.Tangent`, which
+also gives ``W``) and every input costs two back-substitutions.  The
+derivative of the upper-face force follows from ``K_pf dU_f + K_pp dU_p +
+d_p(f_int - f_ext)_p``.  Parameters enter through ``E``, ``nu`` (St
+Venant-Kirchhoff: ``f_int = lambda a(U) + mu b(U)``, linear in the Lame
+constants), ``rho`` (the dead load ``rho g V_a``), ``mu_x``, ``mu_y`` (slip
+rule) and ``alpha`` (the frame ``T``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..contact.law_jacobian import law_jacobian
+from ..fem.elasticity import internal_force
+from ..fem.loads import body_force
+from .held import held_loading
+from .model import Model, NodeStatus
+from .tangent import Tangent
+
+STEP_PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density")
+"""Rows of the parameter directions of a held step, in this order."""
+
+
+@dataclass(frozen=True)
+class HeldDerivative:
+    """Derivatives of a held step's solution along J input directions.
+
+    Attributes
+    ----------
+    displacement : ndarray, shape (n_nodes * 3, J)
+        ``dU`` (node-major), m per unit input.
+    reaction : ndarray, shape (n_contacts, 3, J)
+        ``dr`` local, N per unit input.
+    upper_force : ndarray, shape (n_upper, 3, J)
+        Derivative of the nodal forces ``(f_int - f_ext)`` of the upper face, N per unit input.
+    """
+
+    displacement: np.ndarray
+    reaction: np.ndarray
+    upper_force: np.ndarray
+
+
+class HeldLinearisation:
+    """The linearised equations (1)-(3) of the module docstring at a converged held step.
+
+    Parameters
+    ----------
+    model : Model
+        With the upper face held.
+    start : ndarray, shape (n_nodes, 3)
+        Displacements at the start of the step ``U_0``, m.
+    U : ndarray, shape (n_nodes, 3)
+        Converged displacements, m.
+    r : ndarray, shape (n_contacts, 3)
+        Converged local contact forces, N.
+    node_status : ndarray, shape (n_contacts,)
+        :class:`~fe_contact.stepping.model.NodeStatus` of each contact (the
+        branch of the law; see :mod:`fe_contact.contact.law_jacobian`).
+
+    Attributes
+    ----------
+    tangent : Tangent
+        The factorised tangent at ``U`` (a step from this configuration can reuse it).
+    failure : str
+        Why the linearisation broke down ("" if it did not); then nothing else is set.
+    """
+
+    def __init__(self, model: Model, start: np.ndarray, U: np.ndarray, r: np.ndarray, node_status: np.ndarray):
+        self.model, self.U, self.r = model, U, r
+        self.failure = ""
+        f_int, K, _ = held_loading(model).tangent(model, U)
+        self.f_int = f_int
+        self.K_fp = K[model.free_dofs][:, model.upper_dofs]
+        self.K_p = K[model.upper_dofs]
+        try:
+            self.tangent = Tangent(model, K)
+        except RuntimeError as exc:  # SuperLU: exactly singular
+            self.failure = f"tangent stiffness singular at the converged step: {exc}"
+            return
+        lower, T = model.mesh.lower, model.frame
+        self.w = U[lower] - start[lower]
+        self.w[:, 2] = model.mesh.nodes[lower, 2] + U[lower, 2]
+        u_t = self.w[:, :2] @ T[1:, :2].T
+        A, B, self.B_mu = law_jacobian(node_status == NodeStatus.SEPARATED, node_status == NodeStatus.SLIP, r,
+                                       u_t, model.friction.mu_x, model.friction.mu_y)
+        n = model.n_contacts
+        W = self.tangent.W_scaled * self.tangent.w_mean
+        M = np.einsum("cij,cjm->cim", B, W.reshape(n, 3, 3 * n)).reshape(3 * n, 3 * n)
+        blocks = M.reshape(n, 3, n, 3)
+        blocks[np.arange(n), :, np.arange(n), :] += A
+        self.B = B
+        lu = sla.lu_factor(M, check_finite=False)
+        if not np.all(np.isfinite(lu[0])) or np.any(np.diag(lu[0]) == 0.0):
+            self.failure = "linearised contact law singular at the converged step"
+            return
+        self.lu = lu
+
+    def solve(self, d_start: np.ndarray, d_upper: np.ndarray, d_params: np.ndarray) -> HeldDerivative:
+        """Derivatives along J input directions.
+
+        Parameters
+        ----------
+        d_start : ndarray, shape (n_nodes * 3, J)
+            ``dU_0``, derivative of the start displacements.
+        d_upper : ndarray, shape (n_upper * 3, J)
+            ``dU_p``, derivative of the prescribed upper-face displacements.
+        d_params : ndarray, shape (6, J)
+            Derivatives of the parameters :data:`STEP_PARAMETERS` (``alpha`` in rad).
+        """
+        model, r = self.model, self.r
+        n, J = model.n_contacts, d_start.shape[1]
+        T, dT = model.frame, frame_derivative(model.friction.angle)
+        d_mu, d_alpha = d_params[:2], d_params[2]
+        f_p = self.parameter_force(d_params)  # (n_dofs, J)
+        rhs = np.zeros((model.mesh.n_dofs, J))
+        rhs[model.lower_dofs.ravel()] = np.outer((r @ dT).ravel(), d_alpha)
+        rhs = rhs[model.free_dofs] - self.K_fp @ d_upper - f_p[model.free_dofs]
+        db = self.tangent.solve(rhs).reshape(-1, J)
+        dw = db[self.tangent.contact_index].reshape(n, 3, J) - d_start[model.lower_dofs.ravel()].reshape(n, 3, J)
+        dw[:, 2] += d_start[model.lower_dofs[:, 2]]  # the gap is total, not an increment
+        dq = np.einsum("ij,cjk->cik", T, dw) + np.einsum("ij,cj,k->cik", dT, self.w, d_alpha)
+        b = -np.einsum("cij,cjk->cik", self.B, dq) - np.einsum("cij,jk->cik", self.B_mu, d_mu)
+        dr = sla.lu_solve(self.lu, b.reshape(3 * n, J), check_finite=False).reshape(n, 3, J)
+        force = np.zeros((model.mesh.n_dofs, J))
+        force[model.lower_dofs.ravel()] = np.einsum("ji,cjk->cik", T, dr).reshape(3 * n, J)
+        dU = np.zeros((model.mesh.n_dofs, J))
+        dU[model.free_dofs] = db + self.tangent.solve(force[model.free_dofs]).reshape(-1, J)
+        dU[model.upper_dofs] = d_upper
+        d_force = (self.K_p @ dU + f_p[model.upper_dofs]).reshape(-1, 3, J)
+        return HeldDerivative(dU, dr, d_force)
+
+    def parameter_force(self, d_params: np.ndarray) -> np.ndarray:
+        """``d_p (f_int - f_ext)`` at fixed ``U`` (n_dofs, J), N per unit input.
+
+        St Venant-Kirchhoff forces are ``lambda a(U) + mu b(U)``: ``b`` is
+        twice the force of the material ``(E, nu) = (1, 0)`` (``lambda = 0``,
+        ``mu = 1/2``) and ``a`` follows from ``(1, 1/4)`` (``lambda = mu = 0.4``).
+        The dead load is ``rho g V_a``.
+        """
+        model = self.model
+        out = np.zeros((model.mesh.n_dofs, d_params.shape[1]))
+        d_young, d_poisson, d_density = d_params[3], d_params[4], d_params[5]
+        if np.any(d_young) or np.any(d_poisson):
+            mat = model.material
+            force = lambda young, nu: internal_force(model.geometry, model.mesh.elements, self.U,  # noqa: E731
+                                                     replace(mat, young=young, poisson=nu))[0]
+            b = 2.0 * force(1.0, 0.0)
+            a = (force(1.0, 0.25) - 0.4 * b) / 0.4
+            E, nu = mat.young, mat.poisson
+            dlam_dnu = E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) ** 2 * (1.0 - 2.0 * nu) ** 2)
+            dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
+            f_lame = mat.lame_lambda * a + mat.lame_mu * b
+            out += np.outer(f_lame / E, d_young) + np.outer(dlam_dnu * a + dmu_dnu * b, d_poisson)
+        if np.any(d_density):
+            out -= np.outer(body_force(model.nodal_volume, 1.0), d_density)
+        return out
+
+
+def frame_derivative(angle: float) -> np.ndarray:
+    """``dT/dalpha`` (3, 3) of the world -> local frame of
+    :func:`~fe_contact.stepping.model.local_frame` (rows ``n``, ``t_x``, ``t_y``)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[0.0, 0.0, 0.0], [-s, c, 0.0], [-c, -s, 0.0]])
+
+
+def upper_pose_jacobian(model: Model, rotation: float) -> np.ndarray:
+    """Derivative of the upper face's displacements with respect to its pose
+    ``(t_x, t_y, t_z, theta)`` (:func:`~fe_contact.stepping.predictor.upper_face_displacement`),
+    shape (n_upper * 3, 4): m/m and m/rad."""
+    rel = model.mesh.nodes[model.mesh.upper] - model.upper_centre
+    n_up = rel.shape[0]
+    c, s = math.cos(rotation), math.sin(rotation)
+    out = np.zeros((n_up, 3, 4))
+    out[:, 0, 0] = out[:, 1, 1] = out[:, 2, 2] = 1.0
+    out[:, 0, 3] = -s * rel[:, 0] - c * rel[:, 1]
+    out[:, 1, 3] = c * rel[:, 0] - s * rel[:, 1]
+    return out.reshape(3 * n_up, 4)
+
+
+def plate_wrench_derivative(model: Model, U: np.ndarray, f_upper: np.ndarray, dU: np.ndarray,
+                            df_upper: np.ndarray) -> np.ndarray:
+    """Derivative (3, J) of :func:`~fe_contact.stepping.measure.plate_wrench`
+    ``(F_x, F_y, M_z)`` for displacement derivatives ``dU`` (n_dofs, J) and
+    upper-face force derivatives ``df_upper`` (n_upper, 3, J)."""
+    upper = model.mesh.upper
+    x = (model.mesh.nodes + U)[upper, :2]
+    rel = x - x.mean(axis=0)
+    d_x = dU.reshape(-1, 3, dU.shape[1])[upper, :2]
+    d_rel = d_x - d_x.mean(axis=0)
+    f = f_upper
+    d_moment = (np.einsum("n,nk->k", rel[:, 0], df_upper[:, 1]) - np.einsum("n,nk->k", rel[:, 1], df_upper[:, 0])
+                + np.einsum("nk,n->k", d_rel[:, 0], f[:, 1]) - np.einsum("nk,n->k", d_rel[:, 1], f[:, 0]))
+    return np.vstack([df_upper[:, 0].sum(axis=0), df_upper[:, 1].sum(axis=0), d_moment])
+
+
+def lower_pose_derivative(model: Model, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
+    """Derivative (3, J) of the lower face's pose ``(x, y, yaw)``: the
+    area-weighted centroid displacement and the best-fit yaw
+    ``atan2(sum w p x (x), sum w p . x)`` of :func:`~fe_contact.stepping.pose.planar_yaw`,
+    for displacement derivatives ``dU`` (n_dofs, J)."""
+    lower, w = model.mesh.lower, model.lower_area
+    d = dU.reshape(-1, 3, dU.shape[1])[lower, :2]  # (n, 2, J)
+    d_centroid = np.einsum("n,nik->ik", w, d) / w.sum()
+    X = model.mesh.nodes[lower, :2]
+    p = X - (w[:, None] * X).sum(axis=0) / w.sum()
+    x = X + U[lower, :2]
+    x = x - (w[:, None] * x).sum(axis=0) / w.sum()
+    cross = (w * (p[:, 0] * x[:, 1] - p[:, 1] * x[:, 0])).sum()
+    dot = (w * (p * x).sum(axis=1)).sum()
+    d_cross = np.einsum("n,nk->k", w * p[:, 0], d[:, 1]) - np.einsum("n,nk->k", w * p[:, 1], d[:, 0])
+    d_dot = np.einsum("n,nk->k", w * p[:, 0], d[:, 0]) + np.einsum("n,nk->k", w * p[:, 1], d[:, 1])
+    d_yaw = (dot * d_cross - cross * d_dot) / (dot**2 + cross**2)
+    return np.vstack([d_centroid, d_yaw])

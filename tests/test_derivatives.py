@@ -1,0 +1,134 @@
+"""Exact derivatives of rollouts (issue 30): implicit-function-theorem
+sensitivities of converged steps against central differences of rollouts, on
+sticking, sliding, mixed, yawed, hanging (separated), self-weighted and
+compliant-gripper rollouts; and the check fails when a term of the derivative
+is dropped."""
+
+import numpy as np
+import pytest
+
+import fe_contact.fem.elasticity as elasticity
+import fe_contact.stepping.gripper as gripper
+import fe_contact.stepping.sensitivity as sensitivity
+from fe_contact import Command, Friction, Gripper, Material, Model, NodeStatus, SolverOptions, block_mesh
+from fe_contact.stepping.derivatives import OUTPUTS, check_derivatives, rollout_derivatives
+
+REL_TOL = 1e-6
+"""Agreement of exact and central-difference derivatives (normalised, see check_derivatives)."""
+DROPPED_TERM_ERROR = 1e-3
+"""A derivative with a term dropped is off by at least this."""
+TIGHT = SolverOptions(newton_tol=1e-13, local_tol=1e-14)
+"""Solver tolerances far below the central differences' step (their noise is tol / step)."""
+SIZE = (0.02, 0.02, 0.01)
+PRESS = Command(dz=-2e-4)
+
+
+def model(mu=(0.3, 0.15), angle=0.4, divisions=(2, 2, 1), density=0.0, gripper=None):
+    return Model(block_mesh(SIZE, divisions), Material(2e6, 0.3, density), Friction(*mu, angle), options=TIGHT,
+                 gripper=gripper or Gripper())
+
+
+def statuses(result):
+    return [np.bincount(r.node_status, minlength=3) for r in result.reports]
+
+
+def assert_agrees(check, tol=REL_TOL):
+    assert check.max_error <= tol, check.worst()
+
+
+def test_sticking_rollout():
+    m, cmds = model(mu=(2.0, 1.5), divisions=(3, 3, 1)), [PRESS, Command(dx=1e-5, dy=5e-6)]
+    last = statuses(rollout_derivatives(m, cmds))[-1]
+    assert last[NodeStatus.STICK] == m.n_contacts
+    assert_agrees(check_derivatives(m, cmds))
+
+
+def test_sliding_rollout():
+    m, cmds = model(mu=(0.1, 0.05)), [PRESS, Command(dx=5e-4, dy=2e-4), Command(dx=4e-4)]
+    result = rollout_derivatives(m, cmds)
+    assert all(s[NodeStatus.SLIP] == m.n_contacts for s in statuses(result)[1:])
+    assert_agrees(check_derivatives(m, cmds))
+
+
+def test_mixed_stick_slip_rollout():
+    m, cmds = model(divisions=(3, 3, 2)), [PRESS, Command(dx=6e-5, dy=3e-5)]
+    last = statuses(rollout_derivatives(m, cmds))[-1]
+    assert last[NodeStatus.STICK] > 0 and last[NodeStatus.SLIP] > 0, last
+    assert_agrees(check_derivatives(m, cmds))
+
+
+def test_yawed_rollout_with_self_weight():
+    m = model(angle=-0.7, density=800.0)
+    cmds = [PRESS, Command(dx=2e-4, dtheta=0.02), Command(dy=3e-4, dtheta=-0.01)]
+    result = rollout_derivatives(m, cmds)
+    assert abs(result.outputs[-1, OUTPUTS.index("lower_yaw")]) > 1e-4
+    check = check_derivatives(m, cmds)
+    assert_agrees(check)
+    assert np.abs(result.d_parameters[:, :, result.parameters.index("density")]).max() > 0
+
+
+def test_hanging_block_all_separated():
+    # lifted off the floor by its upper face: every contact separated, the lower
+    # face sags under the weight (its derivatives in young and density are the sag's)
+    m, cmds = model(density=2000.0), [PRESS, Command(dz=4e-4), Command(dx=1e-4)]
+    assert statuses(rollout_derivatives(m, cmds))[-1][NodeStatus.SEPARATED] == m.n_contacts
+    assert_agrees(check_derivatives(m, cmds))
+
+
+def test_compliant_gripper_rollout(monkeypatch):
+    # the plate balance's own tolerance is the central differences' noise: tightened; the
+    # step 3e-5 balances their h^2 error (1.8e-4, 1.6e-5, 1.7e-6 at 1e-3, 3e-4, 1e-4) and that noise
+    monkeypatch.setattr(gripper, "PLATE_TOL", 1e-14)
+    m = model(gripper=Gripper(2e3, 2.0))
+    cmds = [PRESS, Command(dx=2e-4, dy=1e-4, dtheta=0.01)]
+    result = rollout_derivatives(m, cmds)
+    plate = result.outputs[-1, [OUTPUTS.index("plate_x"), OUTPUTS.index("plate_y")]]
+    assert np.all(np.abs(plate - [2e-4, 1e-4]) > 1e-6)  # the plate lags the command
+    check = check_derivatives(m, cmds, parameters=("angle", "stiffness_xy", "stiffness_yaw"), rel_step=3e-5)
+    assert_agrees(check)
+
+
+def test_derivative_rollout_is_the_plain_rollout():
+    from fe_contact import run
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4, dtheta=0.01)]
+    _, reports = run(m, cmds)
+    result = rollout_derivatives(m, cmds)
+    np.testing.assert_allclose(result.reports[-1].displacement, reports[-1].displacement, rtol=0, atol=1e-15)
+
+
+def test_dropping_the_geometric_stiffness_fails(monkeypatch):
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4)]
+    assert_agrees(check_derivatives(m, cmds, parameters=("young",)))
+    original = elasticity._element_tangents
+    monkeypatch.setattr(elasticity, "_element_tangents", lambda g, F, S, mat: original(g, F, 0.0 * S, mat))
+    assert check_derivatives(m, cmds, parameters=("young",)).max_error > DROPPED_TERM_ERROR
+
+
+def test_dropping_the_friction_angle_term_fails(monkeypatch):
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4)]
+    monkeypatch.setattr(sensitivity, "frame_derivative", lambda angle: np.zeros((3, 3)))
+    check = check_derivatives(m, cmds, parameters=("angle",))
+    assert check.error[:, check.inputs.index("angle")].max() > DROPPED_TERM_ERROR
+
+
+def test_dropping_the_slip_rule_friction_term_fails(monkeypatch):
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4)]
+    original = sensitivity.law_jacobian
+
+    def without_mu(*args):
+        A, B, B_mu = original(*args)
+        return A, B, 0.0 * B_mu
+
+    monkeypatch.setattr(sensitivity, "law_jacobian", without_mu)
+    check = check_derivatives(m, cmds, parameters=("mu_x", "mu_y"))
+    assert check.error[:, check.inputs.index("mu_y")].max() > DROPPED_TERM_ERROR
+
+
+def test_invalid_arguments():
+    m = model()
+    with pytest.raises(ValueError, match="opens the gripper"):
+        rollout_derivatives(m, [PRESS, Command(open=1.0)])
+    with pytest.raises(ValueError, match="rigid gripper"):
+        rollout_derivatives(m, [PRESS], parameters=("stiffness_xy",))
+    with pytest.raises(ValueError, match="unknown parameter"):
+        rollout_derivatives(m, [PRESS], parameters=("mass",))
