@@ -132,3 +132,14 @@ def test_invalid_arguments():
         rollout_derivatives(m, [PRESS], parameters=("stiffness_xy",))
     with pytest.raises(ValueError, match="unknown parameter"):
         rollout_derivatives(m, [PRESS], parameters=("mass",))
+
+
+def test_continuing_from_the_press_is_the_whole_rollout():
+    m, pushes = model(), [Command(dx=2e-4, dy=1e-4), Command(dx=1e-4, dtheta=0.01)]
+    whole = rollout_derivatives(m, [PRESS, *pushes])
+    press = rollout_derivatives(m, [PRESS])
+    rest = rollout_derivatives(m, pushes, start=press)
+    np.testing.assert_allclose(rest.d_parameters, whole.d_parameters[1:], rtol=1e-9,
+                               atol=1e-12 * np.abs(whole.d_parameters).max())
+    np.testing.assert_allclose(rest.d_commands, whole.d_commands[1:, :, 1:], rtol=1e-9,
+                               atol=1e-12 * np.abs(whole.d_commands).max())

@@ -65,6 +65,9 @@ class RolloutDerivatives:
     reports : tuple of StepReport
     wall_time : float
         s.
+    parameter_state : StateDerivative
+        Derivatives of the final state with respect to ``parameters`` (to
+        continue the rollout: ``rollout_derivatives(..., start=this)``).
     """
 
     status: Status
@@ -76,6 +79,7 @@ class RolloutDerivatives:
     state: State
     reports: tuple
     wall_time: float
+    parameter_state: "StateDerivative"
 
     @property
     def converged(self) -> bool:
@@ -135,13 +139,15 @@ def _check(model, commands, parameters) -> tuple[list, tuple]:
     return commands, parameters
 
 
-def rollout_derivatives(model: Model, commands, state: State | None = None,
-                        parameters=None) -> RolloutDerivatives:
+def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
+                        start: RolloutDerivatives | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
     differentiate every output of every step (module docstring).
 
-    ``state`` is held fixed: its own dependence on the parameters (if it came
-    from earlier steps of this model) is not included.
+    ``state`` is held fixed: its own dependence on the parameters is not
+    included.  To include it, give instead ``start``, an earlier converged
+    result of this model (e.g. the press), whose final state and parameters
+    the rollout continues from.
 
     Raises
     ------
@@ -149,6 +155,10 @@ def rollout_derivatives(model: Model, commands, state: State | None = None,
         Not a Model or Commands, a release command, an unknown parameter, or
         a gripper stiffness with a rigid gripper.
     """
+    if start is not None:
+        if not isinstance(start, RolloutDerivatives) or not start.converged:
+            raise ValueError("start must be a converged RolloutDerivatives")
+        state, parameters = start.state, start.parameters
     commands, parameters = _check(model, commands, parameters)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
@@ -157,7 +167,10 @@ def rollout_derivatives(model: Model, commands, state: State | None = None,
     seeds = np.zeros((len(PARAMETERS), J))  # d parameter / d input
     for j, p in enumerate(parameters):
         seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
-    d_state = _StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
+    d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
+    if start is not None:
+        for name in ("displacement", "pose", "plate"):
+            getattr(d_state, name)[:, 4 * K:] = getattr(start.parameter_state, name)
     outputs, d_out, reports = np.zeros((K, 9)), np.zeros((K, 9, J)), []
     status, message = Status.CONVERGED, ""
     for k, command in enumerate(commands):
@@ -170,14 +183,16 @@ def rollout_derivatives(model: Model, commands, state: State | None = None,
         state, report, d_state, outputs[k], d_out[k] = result
         reports.append(report)
     n = len(reports)
+    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:] for k in ("displacement", "pose", "plate")))
     return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
-                              d_out[:n, :, 4 * K:], parameters, state, tuple(reports), time.perf_counter() - t0)
+                              d_out[:n, :, 4 * K:], parameters, state, tuple(reports), time.perf_counter() - t0,
+                              tail)
 
 
 @dataclass(frozen=True)
-class _StateDerivative:
-    """``dU`` (n_dofs, J), the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J)
-    and the plate pose (3, J) of a state."""
+class StateDerivative:
+    """Derivative of a state along J inputs: ``displacement`` (n_dofs, J), m;
+    the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J); the plate pose (3, J)."""
 
     displacement: np.ndarray
     pose: np.ndarray
@@ -207,7 +222,7 @@ def _step_derivative(model, state, command, d_state, d_command, seeds):
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), d_force.sum(axis=0), d_plate])
     outputs = _report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
-    return new_state, report, _StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
+    return new_state, report, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
 
 
 def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):

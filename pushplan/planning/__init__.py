@@ -8,6 +8,7 @@ NLP on it, and the correction loop that verifies the plan in the FE model.
 ``planner``        :func:`plan`, the correction loop
 ``result``         :class:`PlanResult`, typed
 ``document``       ``plan.json`` and ``recording.rrd``
+``push_model``     :class:`PushModel`, the FE model as a planner plugin with exact Jacobians
 
 Imports nothing from ``mujoco``, ``studies`` or ``cli``; the ``[plan]`` table is
 :mod:`pushplan.config.plan`.
@@ -16,8 +17,9 @@ Imports nothing from ``mujoco``, ``studies`` or ``cli``; the ``[plan]`` table is
 from ..config.plan import PlanSpec, parse_plan
 from .document import plan_commands_json, plan_document, write_recording
 from .planner import plan
+from .push_model import PushJacobian, PushModel
 from .result import Iteration, PlanResult
 from .rollouts import PlanningError, Rollout
 
-__all__ = ["Iteration", "PlanResult", "PlanSpec", "PlanningError", "Rollout", "parse_plan", "plan",
+__all__ = ["Iteration", "PlanResult", "PlanSpec", "PlanningError", "PushJacobian", "PushModel", "Rollout", "parse_plan", "plan",
            "plan_commands_json", "plan_document", "write_recording"]
