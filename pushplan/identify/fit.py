@@ -2,8 +2,10 @@
 
 With the whitened residual ``r(theta) = (y_FE(theta) - y_obs) / sigma`` (the noise
 model of :mod:`.noise`), the estimate minimises ``||r||^2`` by Levenberg-Marquardt
-(Marquardt 1963) in scaled parameters, the Jacobian ``J = dr/dtheta`` by forward
-differences of FE rollouts (one rollout per parameter and iteration).  At the
+(Marquardt 1963) in scaled parameters, the Jacobian ``J = dr/dtheta`` exact, from the
+rollouts' derivatives (:meth:`.forward.FePredictor.jacobian`: each trial rollout brings
+its Jacobian), or by forward differences of FE rollouts (one rollout per parameter and
+iteration) for a predictor without them.  At the
 estimate the Gauss-Newton covariance is
 
     Cov = (J^T J)^-1                       (computed from the SVD of J),
@@ -106,13 +108,19 @@ def _residual(predict, y, sigma, theta) -> np.ndarray:
     return (predict(theta) - y) / sigma
 
 
-def _jacobian(predict, y, sigma, names, theta, r0) -> np.ndarray:
-    J = np.empty((r0.size, len(names)))
-    for j, k in enumerate(names):
+def _jacobian(predict, y, sigma, names, theta, r0, free=None) -> np.ndarray:
+    """``dr/dtheta`` (n_values, n_free) of the parameters ``free`` (a mask; all by
+    default): exact if ``predict`` has derivatives, else forward differences."""
+    free = np.ones(len(names), bool) if free is None else np.asarray(free)
+    if getattr(predict, "exact", False):
+        return predict.jacobian(theta)[:, free] / sigma[:, None]
+    J = np.empty((r0.size, int(free.sum())))
+    for col, j in enumerate(np.flatnonzero(free)):
+        k = names[j]
         h = FD_STEP[k] * (abs(theta[j]) if k == "young" else 1.0)
         t = theta.copy()
         t[j] += h
-        J[:, j] = (_residual(predict, y, sigma, t) - r0) / h
+        J[:, col] = (_residual(predict, y, sigma, t) - r0) / h
     return J
 
 
@@ -149,7 +157,7 @@ def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None)
 
     theta_fixed = theta.copy()
     for it in range(1, MAX_ITERATIONS + 1):
-        Jf = J[:, free] if J is not None else _jacobian(lambda t: predict(full(t)), y, sigma, sub, theta[free], r)
+        Jf = J[:, free] if J is not None else _jacobian(predict, y, sigma, names, theta, r, free)
         J = None
         D = scales(sub, theta[free])
         for _ in range(8):
@@ -213,11 +221,12 @@ def _rms(obs, r: np.ndarray) -> dict:
 
 
 def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAULT_FIT,
-             log=None, model_error: bool = True) -> Identification:
+             log=None, model_error: bool = True, exact: bool = True) -> Identification:
     """Estimate the parameters ``fit`` from ``obs`` (one :class:`Observations` or several,
     each from its own press; see the module docstring).  ``model_error`` False skips the
     refined-mesh rollout and the chi-square profile checks of :mod:`.uncertainty` (the
-    chi-square rule still applies).
+    chi-square rule still applies).  ``exact`` False takes the Jacobian by forward
+    differences.
 
     Raises
     ------
@@ -237,7 +246,7 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
     y, sigma = stacked(obs), noise.sigma(obs, scenario.size)
     if y.size < len(names):
         raise InputError(f"observations: {y.size} values cannot determine {len(names)} parameters")
-    predict = FePredictor(scenario, obs, names)
+    predict = FePredictor(scenario, obs, names, exact=exact)
     initial = np.array([getattr(scenario, k) for k in names], float)
     start, used = initial.copy(), False
     if {"mu_x", "mu_y", "angle_deg"} <= set(names):
@@ -294,7 +303,8 @@ def _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, check, predi
     ratios, sd_profile = np.full((len(names), 2), np.nan), np.sqrt(np.maximum(np.diag(cov0), 0.0))
     fine, notes = None, []
     if model_error:
-        fine = FePredictor(scenario, obs, names, elements=tuple(REFINEMENT * e for e in scenario.elements))
+        fine = FePredictor(scenario, obs, names, elements=tuple(REFINEMENT * e for e in scenario.elements),
+                           exact=False)  # one value, no Jacobian
         try:
             shift, mesh_chi2 = discretisation_shift(J, sigma, r * sigma + y, fine(theta), cov0)
         except IdentificationError as e:
