@@ -143,3 +143,12 @@ def test_continuing_from_the_press_is_the_whole_rollout():
                                atol=1e-12 * np.abs(whole.d_parameters).max())
     np.testing.assert_allclose(rest.d_commands, whole.d_commands[1:, :, 1:], rtol=1e-9,
                                atol=1e-12 * np.abs(whole.d_commands).max())
+
+
+def test_superlu_tangent_gives_the_same_derivatives():
+    # a mesh that is not a tensor grid is factorised by SuperLU (two solves per input instead of one pass)
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4, dtheta=0.01)]
+    grid = rollout_derivatives(m, cmds).jacobian()
+    lu = model()
+    object.__setattr__(lu, "factor_structure", None)
+    np.testing.assert_allclose(rollout_derivatives(lu, cmds).jacobian(), grid, rtol=1e-7, atol=1e-9 * np.abs(grid).max())

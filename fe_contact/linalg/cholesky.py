@@ -240,9 +240,10 @@ class SupernodalFactor:
         return out
 
     def root_forward(self, b: np.ndarray) -> np.ndarray:
-        """``L_root^-1 b`` (n_root,): the root block of :meth:`forward` of a
-        right-hand side ``b`` on the contact dofs (root order) and 0 elsewhere."""
-        return blas.dtrsm(1.0, self._diagonal[-1], np.asarray(b, dtype=float).reshape(-1, 1), lower=1).ravel()
+        """``L_root^-1 b`` (n_root,) or (n_root, k): the root block of :meth:`forward` of
+        right-hand sides ``b`` on the contact dofs (root order) and 0 elsewhere."""
+        b = np.asarray(b, dtype=float)
+        return blas.dtrsm(1.0, self._diagonal[-1], b.reshape(b.shape[0], -1), lower=1).reshape(b.shape)
 
     def root_backward(self, y: np.ndarray) -> np.ndarray:
         """The contact dofs (root order) of :meth:`backward`: ``L_root^-T

@@ -23,7 +23,9 @@ geometric stiffness) at the converged ``U``.  (2) into (3) gives the
 condensed system ``(A + B W) dr = -B dq - B_mu dmu`` (3n, 3n): one dense LU
 per step; then ``dU_f = db + K_ff^-1 C^T T^T dr``.  The tangent ``K_ff`` is
 factorised once per step (:class:`~fe_contact.stepping.tangent.Tangent`, which
-also gives ``W``) and every input costs two back-substitutions.  The
+also gives ``W``) and every input costs one forward and one backward
+substitution (:meth:`~fe_contact.stepping.tangent.Tangent.solve_with_contact`:
+the contact dofs are eliminated last).  The
 derivative of the upper-face force follows from ``K_pf dU_f + K_pp dU_p +
 d_p(f_int - f_ext)_p``.  Parameters enter through ``E``, ``nu`` (St
 Venant-Kirchhoff: ``f_int = lambda a(U) + mu b(U)``, linear in the Lame
@@ -144,16 +146,14 @@ class HeldLinearisation:
         rhs = np.zeros((model.mesh.n_dofs, J))
         rhs[model.lower_dofs.ravel()] = np.outer((r @ dT).ravel(), d_alpha)
         rhs = rhs[model.free_dofs] - self.K_fp @ d_upper - f_p[model.free_dofs]
-        db = self.tangent.solve(rhs).reshape(-1, J)
-        dw = db[self.tangent.contact_index].reshape(n, 3, J) - d_start[model.lower_dofs.ravel()].reshape(n, 3, J)
+        db_contact, finish = self.tangent.solve_with_contact(rhs)
+        dw = db_contact - d_start[model.lower_dofs.ravel()].reshape(n, 3, J)
         dw[:, 2] += d_start[model.lower_dofs[:, 2]]  # the gap is total, not an increment
         dq = np.einsum("ij,cjk->cik", T, dw) + np.einsum("ij,cj,k->cik", dT, self.w, d_alpha)
         b = -np.einsum("cij,cjk->cik", self.B, dq) - np.einsum("cij,jk->cik", self.B_mu, d_mu)
         dr = sla.lu_solve(self.lu, b.reshape(3 * n, J), check_finite=False).reshape(n, 3, J)
-        force = np.zeros((model.mesh.n_dofs, J))
-        force[model.lower_dofs.ravel()] = np.einsum("ji,cjk->cik", T, dr).reshape(3 * n, J)
         dU = np.zeros((model.mesh.n_dofs, J))
-        dU[model.free_dofs] = db + self.tangent.solve(force[model.free_dofs]).reshape(-1, J)
+        dU[model.free_dofs] = finish(np.einsum("ji,cjk->cik", T, dr))
         dU[model.upper_dofs] = d_upper
         d_force = (self.K_p @ dU + f_p[model.upper_dofs]).reshape(-1, 3, J)
         return HeldDerivative(dU, dr, d_force)

@@ -189,33 +189,36 @@ class Tangent:
 
     def solve_with_contact(self, rhs_free: np.ndarray):
         """Begin ``K_ff^-1 (rhs + C^T f)`` for contact-node forces ``f`` not
-        known yet.
+        known yet, for one right-hand side (n_free,) or several (n_free, k).
 
         Returns the contact-node displacements of ``K_ff^-1 rhs`` (n_lower, 3)
-        and a function of ``f`` (n_lower, 3, world frame) that returns the
-        whole solution (n_free,).  On the multifrontal factor this is one
-        forward and one backward substitution in all: the contact dofs are
-        eliminated last, so ``f`` changes only the root block of the forward
-        pass.  On SuperLU it is two solves.
+        or (n_lower, 3, k) and a function of ``f`` (shaped like them, world
+        frame) that returns the whole solution (n_free,) or (n_free, k).  On
+        the multifrontal factor this is one forward and one backward
+        substitution in all: the contact dofs are eliminated last, so ``f``
+        changes only the root block of the forward pass.  On SuperLU it is two
+        solves.
         """
+        rhs_free = np.asarray(rhs_free, dtype=float)
+        k = rhs_free.shape[1:]
         if isinstance(self.factor, SupernodalFactor):
             factor = self.factor
             y = factor.forward(rhs_free)
-            contact = factor.root_backward(y).reshape(-1, 3)
+            contact = factor.root_backward(y)  # (3 n_lower, k or 1)
 
             def finish(force_world):
-                y[-3 * contact.shape[0]:, 0] += factor.root_forward(force_world.ravel())
-                return factor.backward(y).ravel()
+                y[-contact.shape[0]:] += factor.root_forward(force_world.reshape(contact.shape))
+                return factor.backward(y).reshape(rhs_free.shape)
 
-            return contact, finish
+            return contact.reshape(-1, 3, *k), finish
         x = self.solve(rhs_free)
 
         def finish_lu(force_world):
-            rhs = np.zeros(self.n_free)
-            rhs[self.contact_index] = force_world.ravel()
+            rhs = np.zeros_like(rhs_free)
+            rhs[self.contact_index] = force_world.reshape(-1, *k)
             return x + self.solve(rhs)
 
-        return x[self.contact_index].reshape(-1, 3), finish_lu
+        return x[self.contact_index].reshape(-1, 3, *k), finish_lu
 
 
 def refresh_pays(tangent: Tangent, rate: float, rel_res: float, opts, it: int) -> bool:
