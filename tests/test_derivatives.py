@@ -152,3 +152,15 @@ def test_superlu_tangent_gives_the_same_derivatives():
     lu = model()
     object.__setattr__(lu, "factor_structure", None)
     np.testing.assert_allclose(rollout_derivatives(lu, cmds).jacobian(), grid, rtol=1e-7, atol=1e-9 * np.abs(grid).max())
+
+
+def test_scale_invariance_in_young():
+    # weightless and displacement-driven, every force scales with E and no displacement
+    # depends on it: d pose / dE = 0 and d force / dE = force / E (an exact invariant)
+    m, cmds = model(), [PRESS, Command(dx=2e-4, dy=1e-4, dtheta=0.01)]
+    result = rollout_derivatives(m, cmds, parameters=("young",))
+    d = result.d_parameters[:, :, 0] * m.material.young
+    pose, force = [OUTPUTS.index(k) for k in ("lower_x", "lower_y")], [OUTPUTS.index(k) for k in ("force_x", "force_z")]
+    assert np.abs(d[:, pose]).max() <= 1e-9 * np.abs(result.outputs[:, pose]).max()
+    np.testing.assert_allclose(d[:, force], result.outputs[:, force], rtol=1e-9,
+                               atol=1e-12 * np.abs(result.outputs[:, force]).max())

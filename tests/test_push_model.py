@@ -103,3 +103,11 @@ def test_batched_rollouts_on_a_pool_equal_serial_ones(push):
 def test_units_and_shapes_checked_at_the_boundary(push, commands, match):
     with pytest.raises(InputError, match=match):
         push.rollout(commands)
+
+
+def test_the_documented_example_runs():
+    import re
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / "docs" / "derivatives.md").read_text()
+    (block,) = re.findall(r"```python\n(.*?)```", text, re.S)
+    exec(compile(block, "docs/derivatives.md", "exec"), {})
