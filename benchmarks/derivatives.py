@@ -5,7 +5,8 @@
    input columns of the commands, and with 5 parameters), the parameter-free
    part (the plain rollout plus the linearisation of each converged step:
    tangent, flexibility matrix, LU of the condensed law) and the cost of one
-   input column in a step, in back-substitutions with the step's factor.
+   input column in a step, in back-substitutions with the step's factor; and
+   the reverse-mode gradient of one scalar (all inputs) against the plain rollout.
 2. Identification of (mu_x, mu_y, angle) on a foam block from noisy
    observations, with the exact Jacobian and with forward differences: FE
    rollouts, wall time, estimates.
@@ -23,8 +24,8 @@ import tomllib
 import numpy as np
 
 from _common import write_results
-from fe_contact import (Command, Friction, Material, Model, block_mesh, initial_state, rollout_derivatives, run,
-                        step)
+from fe_contact import (Command, Friction, Material, Model, block_mesh, initial_state, rollout_derivatives,
+                        rollout_gradient, run, step)
 from fe_contact.stepping.sensitivity import HeldLinearisation
 from pushplan.config.observations import Observations
 from pushplan.config.scenario import parse_scenario
@@ -83,6 +84,8 @@ def rollout_cost(elements) -> dict:
     plain = best(lambda: run(model, COMMANDS))
     commands_only = best(lambda: rollout_derivatives(model, COMMANDS, parameters=()))
     with_params = best(lambda: rollout_derivatives(model, COMMANDS, parameters=PARAMETERS))
+    weights = np.ones((K, 9))
+    adjoint = best(lambda: rollout_gradient(model, COMMANDS, weights, parameters=PARAMETERS))
     states = [initial_state(model)]
     for c in COMMANDS:
         states.append(step(model, states[-1], c)[0])
@@ -108,7 +111,8 @@ def rollout_cost(elements) -> dict:
             "per_input_per_step_s": per_column / K, "back_substitution_s": back_substitution,
             "per_input_in_back_substitutions": per_column / K / back_substitution,
             "total_ratio_commands_only": commands_only / plain,
-            "total_ratio_with_parameters": with_params / plain}
+            "total_ratio_with_parameters": with_params / plain,
+            "adjoint_gradient_with_parameters_s": adjoint, "adjoint_ratio": adjoint / plain}
 
 
 def foam(**friction):
@@ -145,7 +149,8 @@ def main() -> None:
         print(f"{c['elements']}: plain {c['plain_rollout_s']:.3f} s, with derivatives "
               f"{c['derivative_rollout_commands_and_5_parameters_s']:.3f} s ({c['inputs_with_parameters']} inputs); "
               f"parameter-free {c['parameter_free_ratio']:.2f}x plain, per input and step "
-              f"{c['per_input_in_back_substitutions']:.2f} back-substitutions")
+              f"{c['per_input_in_back_substitutions']:.2f} back-substitutions; adjoint gradient "
+              f"{c['adjoint_ratio']:.2f}x plain")
     ident = identification()
     print(f"identification: exact {ident['exact']['fe_rollouts']} rollouts {ident['exact']['wall_s']:.2f} s, "
           f"forward differences {ident['forward_differences']['fe_rollouts']} rollouts "

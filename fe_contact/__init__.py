@@ -53,6 +53,7 @@ from .stepping.model import (
     initial_state,
 )
 from .stepping.release import Release, ReleaseSchedule, Rest, release_to_rest, rest_check, run_release
+from .stepping.adjoint import RolloutGradient, rollout_gradient
 from .stepping.derivatives import RolloutDerivatives, check_derivatives, rollout_derivatives
 from .stepping.step import run, step
 from .stepping.warmup import warm_up
@@ -74,6 +75,7 @@ __all__ = [
     "ReleaseSchedule",
     "Rest",
     "RolloutDerivatives",
+    "RolloutGradient",
     "SolverOptions",
     "State",
     "Status",
@@ -87,6 +89,7 @@ __all__ = [
     "release_to_rest",
     "rest_check",
     "rollout_derivatives",
+    "rollout_gradient",
     "run",
     "run_release",
     "solve_local",

@@ -164,3 +164,27 @@ def test_scale_invariance_in_young():
     assert np.abs(d[:, pose]).max() <= 1e-9 * np.abs(result.outputs[:, pose]).max()
     np.testing.assert_allclose(d[:, force], result.outputs[:, force], rtol=1e-9,
                                atol=1e-12 * np.abs(result.outputs[:, force]).max())
+
+
+@pytest.mark.parametrize("case", ["mixed", "yawed_weighted"])
+def test_adjoint_gradient_equals_forward_mode(case):
+    from fe_contact import rollout_gradient
+    if case == "mixed":
+        m, cmds = model(divisions=(3, 3, 2)), [PRESS, Command(dx=6e-5, dy=3e-5), Command(dx=2e-4)]
+    else:
+        m, cmds = model(angle=-0.7, density=800.0), [PRESS, Command(dx=2e-4, dtheta=0.02), Command(dy=3e-4)]
+    units = np.array([1e4, 1e4, 1e2, 1.0, 1.0, 1.0, 1e4, 1e4, 1e2])  # an objective of O(1) per output
+    g = np.random.default_rng(1).normal(size=(len(cmds), len(OUTPUTS))) * units
+    forward = rollout_derivatives(m, cmds)
+    adjoint = rollout_gradient(m, cmds, g)
+    np.testing.assert_allclose(adjoint.outputs, forward.outputs, rtol=0, atol=1e-15)
+    want_c = np.einsum("ki,kijc->jc", g, forward.d_commands)
+    want_p = np.einsum("ki,kip->p", g, forward.d_parameters)
+    np.testing.assert_allclose(adjoint.d_commands, want_c, rtol=0, atol=1e-10 * np.abs(want_c).max())
+    np.testing.assert_allclose(adjoint.d_parameters, want_p, rtol=1e-9)
+
+
+def test_adjoint_refuses_the_compliant_gripper():
+    from fe_contact import rollout_gradient
+    with pytest.raises(ValueError, match="compliant"):
+        rollout_gradient(model(gripper=Gripper(2e3, 2.0)), [PRESS], np.zeros((1, 9)))

@@ -158,6 +158,47 @@ class HeldLinearisation:
         d_force = (self.K_p @ dU + f_p[model.upper_dofs]).reshape(-1, 3, J)
         return HeldDerivative(dU, dr, d_force)
 
+    def solve_adjoint(self, lam_U: np.ndarray, lam_force: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The transpose of :meth:`solve` (reverse mode): for the weights
+        ``lam_U`` (n_dofs,) of ``dU`` and ``lam_force`` (n_upper, 3) of the upper
+        face's force derivative, the weights of ``d_start`` (n_dofs,), ``d_upper``
+        (n_upper * 3,) and ``d_params`` (6,).  Two solves with the step's factor
+        (``K_ff`` is symmetric) and one with the transposed condensed law.
+        """
+        model, r, n = self.model, self.r, self.model.n_contacts
+        T, dT = model.frame, frame_derivative(model.friction.angle)
+        lam_U = lam_U + self.K_p.T @ lam_force.ravel()  # dF = K_p dU + f_p
+        lam_params = self.parameter_force_adjoint(lam_force.ravel(), model.upper_dofs)
+        lam_free = lam_U[model.free_dofs]
+        # dU_f = db + K^-1 C^T T^T dr
+        x = self.tangent.solve(lam_free)
+        lam_dr = (x[self.tangent.contact_index].reshape(n, 3)) @ T.T
+        lam_b = sla.lu_solve(self.lu, lam_dr.ravel(), trans=1, check_finite=False).reshape(n, 3)
+        lam_dq = -np.einsum("cij,ci->cj", self.B, lam_b)  # b = -B dq - B_mu dmu
+        lam_params[:2] -= np.einsum("cij,ci->j", self.B_mu, lam_b)
+        lam_dw = lam_dq @ T  # dq = T dw + dT w dalpha
+        lam_params[2] += float(np.sum(lam_dq * (self.w @ dT.T)))
+        lam_db = lam_free.copy()
+        lam_db[self.tangent.contact_index] += lam_dw.ravel()  # dw = C db - dU0 (x, y)
+        lam_start = np.zeros(model.mesh.n_dofs)
+        lam_start[model.lower_dofs[:, :2].ravel()] = -lam_dw[:, :2].ravel()
+        lam_rhs = self.tangent.solve(lam_db)  # db = K^-1 rhs
+        lam_upper = lam_U[model.upper_dofs] - self.K_fp.T @ lam_rhs
+        full = np.zeros(model.mesh.n_dofs)
+        full[model.free_dofs] = lam_rhs
+        lam_params[2] += float(np.sum(full[model.lower_dofs.ravel()] * (r @ dT).ravel()))
+        lam_params -= self.parameter_force_adjoint(lam_rhs, model.free_dofs)
+        return lam_start, lam_upper, lam_params
+
+    def parameter_force_adjoint(self, lam: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+        """``lam . d_p (f_int - f_ext)[dofs]`` for each of :data:`STEP_PARAMETERS` (6,)."""
+        out = np.zeros(6)
+        for i in (3, 4, 5):
+            e = np.zeros((6, 1))
+            e[i] = 1.0
+            out[i] = float(lam @ self.parameter_force(e)[dofs, 0])
+        return out
+
     def parameter_force(self, d_params: np.ndarray) -> np.ndarray:
         """``d_p (f_int - f_ext)`` at fixed ``U`` (n_dofs, J), N per unit input.
 
@@ -170,19 +211,27 @@ class HeldLinearisation:
         out = np.zeros((model.mesh.n_dofs, d_params.shape[1]))
         d_young, d_poisson, d_density = d_params[3], d_params[4], d_params[5]
         if np.any(d_young) or np.any(d_poisson):
-            mat = model.material
-            force = lambda young, nu: internal_force(model.geometry, model.mesh.elements, self.U,  # noqa: E731
-                                                     replace(mat, young=young, poisson=nu))[0]
-            b = 2.0 * force(1.0, 0.0)
-            a = (force(1.0, 0.25) - 0.4 * b) / 0.4
-            E, nu = mat.young, mat.poisson
-            dlam_dnu = E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) ** 2 * (1.0 - 2.0 * nu) ** 2)
-            dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
-            f_lame = mat.lame_lambda * a + mat.lame_mu * b
-            out += np.outer(f_lame / E, d_young) + np.outer(dlam_dnu * a + dmu_dnu * b, d_poisson)
+            f_young, f_poisson = self._material_forces()
+            out += np.outer(f_young, d_young) + np.outer(f_poisson, d_poisson)
         if np.any(d_density):
             out -= np.outer(body_force(model.nodal_volume, 1.0), d_density)
         return out
+
+
+    def _material_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """``d f_int / dE`` and ``d f_int / dnu`` at ``U`` (n_dofs,), N/Pa and N (computed once)."""
+        if getattr(self, "_material", None) is not None:
+            return self._material
+        model, mat = self.model, self.model.material
+        force = lambda young, nu: internal_force(model.geometry, model.mesh.elements, self.U,  # noqa: E731
+                                                 replace(mat, young=young, poisson=nu))[0]
+        b = 2.0 * force(1.0, 0.0)
+        a = (force(1.0, 0.25) - 0.4 * b) / 0.4
+        E, nu = mat.young, mat.poisson
+        dlam_dnu = E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) ** 2 * (1.0 - 2.0 * nu) ** 2)
+        dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
+        self._material = (mat.lame_lambda * a + mat.lame_mu * b) / E, dlam_dnu * a + dmu_dnu * b
+        return self._material
 
 
 def frame_derivative(angle: float) -> np.ndarray:
