@@ -65,7 +65,8 @@ def identified_document(result: Identification, scenario: Scenario, obs: Observa
     ``correlation`` in the order of ``parameters`` (null where undetermined);
     ``residual``: chi-square of the whitened residual before / after, its reduced form
     and the RMS of the whitened residual per column; ``solver.fe_rollouts`` counts every
-    FE rollout of the observed commands (residuals and finite differences).
+    FE rollout of the observed commands (residuals, with their exact Jacobian, or finite
+    differences).
     """
     dof = result.n_values - len(result.names)
     corr = [[_finite(v) for v in row] for row in np.asarray(result.correlation)]
@@ -84,7 +85,9 @@ def identified_document(result: Identification, scenario: Scenario, obs: Observa
                      "rms_whitened": result.residual_rms},
         "solver": {
             "method": "reduced-model prefit (elliptic limit surface, associated slip), then weighted "
-                      "Levenberg-Marquardt on FE rollouts, forward-difference Jacobian",
+                      "Levenberg-Marquardt on FE rollouts, "
+                      + ("exact Jacobian (the rollouts' derivatives)" if result.exact_jacobian
+                         else "forward-difference Jacobian"),
             "prefit_used": result.prefit_used, "iterations": result.iterations, "converged": result.converged,
             "fe_rollouts": result.fe_rollouts,
             "mesh": {"elements": list(scenario.elements), "quadrature": scenario.quadrature},

@@ -82,6 +82,8 @@ class Identification:
     prefit_used: bool = False
     sigma_linear: np.ndarray | None = None
     uncertainty: Uncertainty | None = field(default=None, repr=False)
+    exact_jacobian: bool = False
+    """The Jacobian was exact (the rollouts' derivatives), else forward differences."""
 
     @property
     def interval(self) -> np.ndarray:
@@ -291,6 +293,7 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
         chi2_initial=chi2_initial, chi2=float(r @ r), n_values=int(y.size), residual_rms=_rms(obs, r),
         iterations=iterations, converged=converged, fe_rollouts=fitted_rollouts + unc.fe_rollouts, jacobian=J,
         wall_time=time.perf_counter() - t0, prefit_used=used, sigma_linear=sd0, uncertainty=unc,
+        exact_jacobian=predict.exact,
     )
 
 

@@ -14,8 +14,9 @@ error (:class:`~pushplan.errors.InputError` naming the entry).
 Derivatives are exact (implicit function theorem through the converged FE
 steps, :func:`fe_contact.rollout_derivatives`), with respect to the commands
 and to :data:`PARAMETERS` (the press included).  A rollout with its Jacobian
-costs about one plain rollout plus two back-substitutions per input and step
-(``benchmarks/derivatives.py``).
+costs about 1.3x a plain rollout plus about one back-substitution per input and
+step (``benchmarks/derivatives.py``); for one scalar objective of many inputs,
+:func:`fe_contact.rollout_gradient` (reverse mode) is cheaper.
 """
 
 from __future__ import annotations
