@@ -221,3 +221,11 @@ def test_rest_pose_after_a_lift_release():
         fd = (rest(m, plus) - rest(m, minus)) / (2 * h)
         exact = result.d_rest_commands[:3, k, ["dx", "dy", "dz", "dtheta"].index(c)]
         assert np.abs(exact - fd).max() <= REL_TOL * np.abs(fd).max(), (c, k, exact, fd)
+
+
+def test_isotropic_friction_has_no_axis():
+    # mu_x = mu_y: the axis angle is physically absent, its derivative vanishes to rounding
+    m = model(mu=(0.25, 0.25), angle=0.7)
+    result = rollout_derivatives(m, [PRESS, Command(dx=3e-4, dy=-1e-4, dtheta=-0.02)])
+    d_angle = result.d_parameters[:, :, result.parameters.index("angle")]
+    assert np.abs(d_angle).max() <= 1e-10 * np.abs(result.d_parameters).max()
