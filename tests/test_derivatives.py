@@ -229,3 +229,12 @@ def test_isotropic_friction_has_no_axis():
     result = rollout_derivatives(m, [PRESS, Command(dx=3e-4, dy=-1e-4, dtheta=-0.02)])
     d_angle = result.d_parameters[:, :, result.parameters.index("angle")]
     assert np.abs(d_angle).max() <= 1e-10 * np.abs(result.d_parameters).max()
+
+
+def test_steel_rectangular_block_with_27_gauss_points():
+    # stiff (the central differences' noise floor is higher: their step is 1e-4, where
+    # their h^2 error is 5e-7 and it was 1.6e-5 at 1e-3 and noise 3.7e-6 at 1e-5)
+    m = Model(block_mesh((0.03, 0.015, 0.01), (3, 2, 2)), Material(210e9, 0.3), Friction(0.3, 0.05, 0.0),
+              options=TIGHT, quadrature=3)
+    cmds = [Command(dz=-1e-5), Command(dx=2e-5, dy=2e-5), Command(dx=2e-5, dy=2e-5)]
+    assert_agrees(check_derivatives(m, cmds, parameters=("mu_x", "mu_y", "angle"), rel_step=1e-4))
