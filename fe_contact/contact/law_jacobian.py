@@ -24,9 +24,7 @@ each branch.  At a transition (a node exactly on the border between two
 branches: sticking at the cone's edge, or touching with zero force) the law
 is not differentiable; the branch is the one the step reports
 (:func:`fe_contact.stepping.measure.node_status`) and the derivative is the
-one-sided derivative from that side.  A node slipping with ``M u_t = 0``
-(frictionless, or along an axis without friction) has no derivative in
-``mu``: its ``ds/dmu`` is returned as 0.
+one-sided derivative from that side.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import casadi
 import numpy as np
 
-from fe_contact import Model, Release, State, rollout_derivatives
+from fe_contact import Model, State, rollout_derivatives
 from fe_contact.stepping.derivatives import applicable_parameters
 
 from ..config.commands import planar_commands
@@ -60,10 +60,6 @@ class PushJacobian:
     d_forces : ndarray, shape (K, 3, K, 3)
         ``d forces[k, i] / d commands[j, c]``.
     parameters : tuple of str
-    rest : ndarray, shape (3,), or None
-        Lower-face pose at rest after a ``lift`` release (None without one).
-    d_rest_commands : ndarray, shape (3, K, 3), or None
-    d_rest_parameters : ndarray, shape (3, P), or None
     """
 
     poses: np.ndarray
@@ -72,9 +68,6 @@ class PushJacobian:
     d_parameters: np.ndarray
     d_forces: np.ndarray
     parameters: tuple
-    rest: np.ndarray | None = None
-    d_rest_commands: np.ndarray | None = None
-    d_rest_parameters: np.ndarray | None = None
 
 
 class PushModel:
@@ -87,17 +80,11 @@ class PushModel:
         Applied once from the undeformed block; every rollout starts after it.
     parameters : sequence of str, optional
         Parameters to differentiate (default: all that apply to ``model``).
-    release : fe_contact.Release, optional
-        A ``lift`` release after every rollout: :meth:`rollout_with_jacobian`
-        then gives the rest pose and its derivatives too.
     """
 
-    def __init__(self, model: Model, press, parameters=None, release: Release | None = None):
-        if release is not None and release.mode != "lift":
-            raise InputError(f"release.mode = {release.mode!r}: only a lift release is differentiated")
+    def __init__(self, model: Model, press, parameters=None):
         self.model = model
         self.press = tuple(press)
-        self.release = release
         self.parameters = applicable_parameters(model) if parameters is None else tuple(parameters)
         self.rollouts_run = 0
         self._pressed = None
@@ -107,26 +94,25 @@ class PushModel:
     @classmethod
     def from_scenario(cls, scenario: Scenario, elements=None, parameters=None) -> "PushModel":
         """The model of ``scenario`` (mesh ``elements`` if given), its ``[[load]]``
-        entries the press, its ``[release]`` (``lift`` only) after every rollout.
+        entries the press.
 
         Raises
         ------
         InputError
-            A bad scenario value, a press that is not one, an unknown parameter or
-            an open release.
+            A bad scenario value, a press that is not one, or an unknown parameter.
         """
         model = scenario.model(elements)
         for p in parameters or ():
             if p not in applicable_parameters(model):
                 raise InputError(f"parameters: {p!r} has no derivative here; choose from "
                                  f"{', '.join(applicable_parameters(model))}")
-        return cls(model, press_commands(scenario), parameters, scenario.release)
+        return cls(model, press_commands(scenario), parameters)
 
     def __getstate__(self):  # to a pool worker: no factorised tangents, no CasADi objects
-        return {"model": self.model, "press": self.press, "parameters": self.parameters, "release": self.release}
+        return {"model": self.model, "press": self.press, "parameters": self.parameters}
 
     def __setstate__(self, state):
-        self.__init__(state["model"], state["press"], state["parameters"], state["release"])
+        self.__init__(state["model"], state["press"], state["parameters"])
 
     @property
     def pressed(self):
@@ -182,8 +168,8 @@ class PushModel:
         report = run.reports[-1]
         return run.state, np.array([*report.lower_centroid[:2], report.lower_yaw])
 
-    def _drive(self, commands: np.ndarray, state: State, release: Release | None = None):
-        run = drive(self.model, planar_commands(commands), state, release=release)
+    def _drive(self, commands: np.ndarray, state: State):
+        run = drive(self.model, planar_commands(commands), state)
         if not run.completed:
             f = run.summary.failure
             raise PlanningError(f"FE step {f.step} failed ({f.status}): {f.message}")
@@ -200,21 +186,6 @@ class PushModel:
         self.rollouts_run += 1
         return np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in run.reports])
 
-    def rest_pose(self, commands) -> np.ndarray:
-        """Lower-face pose (3,) at rest after the commands (K, 3) and the lift release.
-
-        Raises
-        ------
-        InputError
-            The model has no release.
-        PlanningError
-        """
-        if self.release is None:
-            raise InputError("rest_pose: this PushModel has no release (a scenario's [release] with mode = \"lift\")")
-        rest = self._drive(self.commands(commands), self.pressed.state, self.release).summary.rest
-        self.rollouts_run += 1
-        return np.array([*rest.lower_centroid[:2], rest.lower_yaw])
-
     def rollout_with_jacobian(self, commands) -> PushJacobian:
         """Poses, forces and their exact derivatives for the commands (K, 3)
         (the last result is kept: a CasADi solver asks for the value and the
@@ -228,15 +199,13 @@ class PushModel:
         key = a.tobytes()
         if self._last[0] == key:
             return self._last[1]
-        result = rollout_derivatives(self.model, planar_commands(a), start=self.pressed, release=self.release)
+        result = rollout_derivatives(self.model, planar_commands(a), start=self.pressed)
         if not result.converged:
             raise PlanningError(f"FE rollout failed: {result.message}")
         self.rollouts_run += 1
         d_cmd = result.d_commands[:, :, :, _PLANAR]
-        rest = () if result.rest is None else (result.rest[:3], result.d_rest_commands[:3][:, :, _PLANAR],
-                                               result.d_rest_parameters[:3])
         jac = PushJacobian(result.outputs[:, :3], result.outputs[:, 3:6], d_cmd[:, :3], result.d_parameters[:, :3],
-                           d_cmd[:, 3:6], result.parameters, *rest)
+                           d_cmd[:, 3:6], result.parameters)
         self._last = (key, jac)
         return jac
 
