@@ -190,39 +190,6 @@ def test_adjoint_refuses_the_compliant_gripper():
         rollout_gradient(model(gripper=Gripper(2e3, 2.0)), [PRESS], np.zeros((1, 9)))
 
 
-def test_rest_pose_after_a_lift_release():
-    # the lift is a sequence of held steps whose rise is the press depth over the steps:
-    # the rest pose depends on the press's dz through it
-    from dataclasses import replace as changed
-    from fe_contact import Release, run, run_release, step
-    from fe_contact.stepping.derivatives import with_parameters
-    release = Release("lift", 3)
-    m = model(density=2000.0)
-    cmds = [PRESS, Command(dx=3e-4, dy=1e-4, dtheta=0.01)]
-    result = rollout_derivatives(m, cmds, release=release)
-    assert len(result.reports) > len(cmds) and result.rest is not None
-
-    def rest(mdl, commands):
-        state, reports = run(mdl, commands)
-        _, lifted = run_release(mdl, state, release, step, reports[-1])
-        assert len(lifted) == len(result.reports) - len(cmds)  # the same number of lift steps
-        return np.array([*lifted[-1].lower_centroid[:2], lifted[-1].lower_yaw])
-
-    values = {"mu_x": 0.3, "angle": 0.4, "density": 2000.0}
-    for name, h in (("mu_x", 3e-5), ("angle", 1e-4), ("density", 0.2)):
-        fd = (rest(with_parameters(m, **{name: values[name] + h}), cmds)
-              - rest(with_parameters(m, **{name: values[name] - h}), cmds)) / (2 * h)
-        exact = result.d_rest_parameters[:3, result.parameters.index(name)]
-        assert np.abs(exact - fd).max() <= REL_TOL * np.abs(fd).max(), (name, exact, fd)
-    for k, c, h in ((0, "dz", 1e-8), (1, "dx", 1e-8), (1, "dtheta", 1e-6)):
-        plus, minus = list(cmds), list(cmds)
-        plus[k] = changed(cmds[k], **{c: getattr(cmds[k], c) + h})
-        minus[k] = changed(cmds[k], **{c: getattr(cmds[k], c) - h})
-        fd = (rest(m, plus) - rest(m, minus)) / (2 * h)
-        exact = result.d_rest_commands[:3, k, ["dx", "dy", "dz", "dtheta"].index(c)]
-        assert np.abs(exact - fd).max() <= REL_TOL * np.abs(fd).max(), (c, k, exact, fd)
-
-
 def test_isotropic_friction_has_no_axis():
     # mu_x = mu_y: the axis angle is physically absent, its derivative vanishes to rounding
     m = model(mu=(0.25, 0.25), angle=0.7)
@@ -238,3 +205,9 @@ def test_steel_rectangular_block_with_27_gauss_points():
               options=TIGHT, quadrature=3)
     cmds = [Command(dz=-1e-5), Command(dx=2e-5, dy=2e-5), Command(dx=2e-5, dy=2e-5)]
     assert_agrees(check_derivatives(m, cmds, parameters=("mu_x", "mu_y", "angle"), rel_step=1e-4))
+
+
+def test_a_frictional_pad_is_refused():
+    from dataclasses import replace as changed
+    with pytest.raises(ValueError, match="frictional pad"):
+        rollout_derivatives(changed(model(), pad=Friction(0.5, 0.5)), [PRESS])

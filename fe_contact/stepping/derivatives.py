@@ -21,14 +21,8 @@ balance ``g(p) = F(p) - k (c - p) = 0``; differentiating it,
 
     (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p,
 
-with ``dF/dp`` from three more directions of the same held step.  A ``lift``
-release (the gripper rises by ``d / steps`` per step, ``d`` the press depth,
-until the plate carries no load: :mod:`fe_contact.stepping.release`) is a
-sequence of held steps whose increments depend on the depth, ``d(dz) =
--d(t_z) / steps``; the rest pose is the lower face's after it (the number of
-extra lift steps is discrete and held fixed).  Open releases (``open > 0``)
-are not differentiated.  For one scalar objective of many inputs the reverse
-mode of :mod:`fe_contact.stepping.adjoint` is cheaper.
+with ``dF/dp`` from three more directions of the same held step.  Release
+steps (``open > 0``) are not differentiated.
 """
 
 from __future__ import annotations
@@ -41,7 +35,6 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .predictor import commanded_pose
-from .release import Release, ReleaseSchedule
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
 from .step import step
 
@@ -75,10 +68,6 @@ class RolloutDerivatives:
     parameter_state : StateDerivative
         Derivatives of the final state with respect to ``parameters`` (to
         continue the rollout: ``rollout_derivatives(..., start=this)``).
-    rest : ndarray, shape (9,), or None
-        :data:`OUTPUTS` after a lift release (None without one).
-    d_rest_commands : ndarray, shape (9, n_steps, 4), or None
-    d_rest_parameters : ndarray, shape (9, n_parameters), or None
     """
 
     status: Status
@@ -91,9 +80,6 @@ class RolloutDerivatives:
     reports: tuple
     wall_time: float
     parameter_state: "StateDerivative"
-    rest: np.ndarray | None = None
-    d_rest_commands: np.ndarray | None = None
-    d_rest_parameters: np.ndarray | None = None
 
     @property
     def converged(self) -> bool:
@@ -138,6 +124,8 @@ def with_parameters(model: Model, **values) -> Model:
 def _check(model, commands, parameters) -> tuple[list, tuple]:
     if not isinstance(model, Model):
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
+    if getattr(model, "pad", None) is not None:
+        raise ValueError("derivatives with a frictional pad on the upper face are not implemented (pad=None: bonded)")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -154,29 +142,26 @@ def _check(model, commands, parameters) -> tuple[list, tuple]:
 
 
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
-                        start: RolloutDerivatives | None = None, release: Release | None = None) -> RolloutDerivatives:
+                        start: RolloutDerivatives | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
     differentiate every output of every step (module docstring).
 
     ``state`` is held fixed: its own dependence on the parameters is not
     included.  To include it, give instead ``start``, an earlier converged
     result of this model (e.g. the press), whose final state and parameters
-    the rollout continues from.  ``release``: a ``lift`` release after the
-    commands, whose rest pose is differentiated too.
+    the rollout continues from.
 
     Raises
     ------
     ValueError
-        Not a Model or Commands, a release command or an open release, an
-        unknown parameter, or a gripper stiffness with a rigid gripper.
+        Not a Model or Commands, a release command, an unknown parameter, or
+        a gripper stiffness with a rigid gripper.
     """
     if start is not None:
         if not isinstance(start, RolloutDerivatives) or not start.converged:
             raise ValueError("start must be a converged RolloutDerivatives")
         state, parameters = start.state, start.parameters
     commands, parameters = _check(model, commands, parameters)
-    if release is not None and (not isinstance(release, Release) or release.mode != "lift"):
-        raise ValueError(f"release must be a lift Release (open releases are not differentiated), got {release!r}")
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     K, n_par = len(commands), len(parameters)
@@ -199,37 +184,11 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
             break
         state, report, d_state, outputs[k], d_out[k] = result
         reports.append(report)
-    n, extra = len(reports), ()
-    if release is not None and status is Status.CONVERGED:
-        lifted = _lift(model, state, reports[-1], release, d_state, seeds, (outputs[n - 1], d_out[n - 1]))
-        if isinstance(lifted[0], Status):
-            status, message = lifted
-        else:
-            state, d_state, rest, d_rest, more = lifted
-            reports += more
-            extra = (rest, d_rest[:, :4 * K].reshape(9, K, 4), d_rest[:, 4 * K:])
+    n = len(reports)
     tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:] for k in ("displacement", "pose", "plate")))
     return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
                               d_out[:n, :, 4 * K:], parameters, state, tuple(reports), time.perf_counter() - t0,
-                              tail, *extra)
-
-
-def _lift(model, state, loaded, release, d_state, seeds, last):
-    """The lift release's steps with their derivatives: (state, d_state, rest
-    outputs (9,), their derivatives (9, J), reports), or (status, message);
-    ``last`` the outputs and derivatives of the loaded state."""
-    schedule = ReleaseSchedule(model, release, state, loaded)
-    d_command = np.zeros_like(d_state.pose)
-    if schedule.depth > 0:  # depth = -t_z
-        d_command[2] = -d_state.pose[2] / release.steps
-    report, reports, (outputs, d_out) = None, [], last
-    while (command := schedule.next_command(state, report)) is not None:
-        result = _step_derivative(model, state, command, d_state, d_command, seeds)
-        if isinstance(result[0], Status):
-            return result
-        state, report, d_state, outputs, d_out = result
-        reports.append(report)
-    return state, d_state, outputs, d_out, reports
+                              tail)
 
 
 @dataclass(frozen=True)
