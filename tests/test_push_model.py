@@ -111,3 +111,10 @@ def test_the_documented_example_runs():
     text = (Path(__file__).resolve().parents[1] / "docs" / "derivatives.md").read_text()
     (block,) = re.findall(r"```python\n(.*?)```", text, re.S)
     exec(compile(block, "docs/derivatives.md", "exec"), {})
+
+
+def test_a_frictional_pad_is_refused_in_one_line():
+    import tomllib
+    text = SCENARIO.replace("[solver]", "[gripper]\nfriction = 0.5\n[solver]")
+    with pytest.raises(InputError, match="gripper.friction: a frictional pad has no derivatives"):
+        PushModel.from_scenario(parse_scenario(tomllib.loads(text)))
