@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from fe_contact import rollout_derivatives
+from fe_contact.stepping.derivatives import applicable_parameters
 
 from ..config.observations import Observations
 from ..config.scenario import Scenario
@@ -61,7 +62,8 @@ class FePredictor:
         Predict with the rollouts' exact derivatives (:func:`fe_contact.rollout_derivatives`),
         kept for :meth:`jacobian` at the same ``theta``; False: plain rollouts
         (the Jacobian by finite differences).  Observations with release
-        steps are always predicted plainly.
+        steps, and ``young`` for a law or element other than the St
+        Venant-Kirchhoff hex8, are always predicted plainly.
     """
 
     def __init__(self, scenario: Scenario, obs: Observations, names, elements=None, quadrature=None,
@@ -69,6 +71,8 @@ class FePredictor:
         self.scenario, self.obs, self.names = scenario, obs, tuple(names)
         self.elements, self.quadrature = elements, quadrature
         self.exact = exact and not any(c.open > 0 for o in as_files(obs) for c in o.commands)
+        if self.exact and "young" in self.names:  # material derivatives: St Venant-Kirchhoff hex8 only
+            self.exact = "young" in applicable_parameters(scenario.model(elements, quadrature))
         self.count = 0
         self.wall_time = 0.0
         self._last = (None, None, None)
