@@ -34,7 +34,7 @@ This package knows nothing about planning, robots, MuJoCo or rerun.
 """
 
 from .fem.elasticity import Material
-from .contact.friction import project_elliptic_cone
+from .contact.friction import local_frame, project_elliptic_cone
 from .fem.loads import GRAVITY, Gripper
 from .contact.local_solver import solve_local
 from .fem.mesh import BlockMesh, block_mesh
@@ -85,6 +85,7 @@ __all__ = [
     "build_model",
     "check_derivatives",
     "initial_state",
+    "local_frame",
     "project_elliptic_cone",
     "release_to_rest",
     "rest_check",

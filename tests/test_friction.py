@@ -21,13 +21,12 @@ from fe_contact.contact.friction import (
     in_cone,
     in_polar_cone,
     modified_velocity,
+    local_frame,
     project_elliptic_cone,
-    rotation_matrix,
     scaling_diagonal,
     to_global,
     to_local,
 )
-from fe_contact.stepping.model import local_frame
 
 # Tolerances, relative to ||tau|| unless stated.  In brackets: maxima measured over
 # 1e5 random points, |tau| in 1e-300..1e300, 1e-3 <= mu <= 10, ratios up to 1e3.
@@ -434,11 +433,12 @@ def test_rotation_round_trip_and_conventions(angle, v):
     w = v[None]
     back = to_global(to_local(w, angle), angle)
     assert norm(back - w) <= ROTATION_TOL * 4 * s
-    # local = (n, t_x, t_y) = T v with the model's frame rows (e_z, t_x, t_y)
+    # local = (n, t_x, t_y): the normal is world z, the tangents keep the in-plane length
     loc = to_local(w, angle)[0]
-    assert norm(loc - local_frame(angle) @ v) <= ROTATION_TOL * 4 * s
-    R = rotation_matrix(angle)
-    assert np.allclose(R.T @ R, np.eye(2), atol=1e-15) and np.linalg.det(R) == pytest.approx(1.0)
+    assert loc[0] == v[2]
+    assert abs(np.hypot(*loc[1:]) - np.hypot(*v[:2])) <= ROTATION_TOL * 4 * s
+    T = local_frame(angle)
+    assert np.allclose(T.T @ T, np.eye(3), atol=1e-15) and np.linalg.det(T) == pytest.approx(1.0)
 
 
 def test_angle_convention():
@@ -455,7 +455,8 @@ def test_angle_convention():
     angles = np.array([0.0, np.pi / 2, np.pi])
     out = to_local(np.tile([1.0, 0.0, 0.0], (3, 1)), angles)
     np.testing.assert_allclose(out, [[0, 1, 0], [0, 0, -1], [0, -1, 0]], atol=1e-15)
-    assert rotation_matrix(angles).shape == (3, 2, 2)
+    assert local_frame(angles).shape == (3, 3, 3)
+    np.testing.assert_array_equal(local_frame(angles)[1], local_frame(np.pi / 2))
 
 
 def test_rotated_isotropic_projection_commutes():
@@ -467,14 +468,21 @@ def test_rotated_isotropic_projection_commutes():
     np.testing.assert_allclose(to_local(to_global(r_world, 0.0), a), r, atol=1e-14)
 
 
-def test_scaling_diagonal_maps_the_unit_cone_onto_k_mu():
-    """D = diag(1, mu_x, mu_y): D K_1 = K_mu, the identity behind FC(DWD, Dq, 1)."""
+def test_scaling_diagonal_maps_the_isotropic_cone_onto_k_mu():
+    """The local solvers' D = diag(1, mu_x / mu, mu_y / mu), mu = max(mu_x, mu_y):
+    D K_mu_iso = K_mu, the identity behind FC(DWD, Dq, mu); D = I for circular cones."""
     rng = np.random.default_rng(5)
     mx, my = rng.uniform(0.01, 1, 200), rng.uniform(0.01, 1, 200)
-    D = scaling_diagonal(mx, my, 200)
-    np.testing.assert_array_equal(D, np.column_stack([np.ones(200), mx, my]))
+    mx[:20], my[:10], my[20:30] = 0.0, 0.0, mx[20:30]  # frictionless, one free axis, circular
+    D, mu = scaling_diagonal(mx, my)
+    np.testing.assert_array_equal(mu, np.maximum(mx, my))
+    np.testing.assert_array_equal(D[:10], 1.0)
+    np.testing.assert_array_equal(D[10:20], [[1.0, 0.0, 1.0]] * 10)
+    np.testing.assert_array_equal(D[20:30], 1.0)
+    np.testing.assert_array_equal(D[10:, 1:].max(axis=1), 1.0)
     s = rng.standard_normal((200, 3))
-    np.testing.assert_array_equal(in_cone(D * s, mx, my), in_cone(s, 1.0, 1.0))
+    s[10:20, 1] = 0.0  # the solvers pin the scaled component of an axis without friction
+    np.testing.assert_array_equal(in_cone(D * s, mx, my)[10:], in_cone(s, mu, mu)[10:])
 
 
 # ---------------------------------------------------------------------- bad input
@@ -493,7 +501,7 @@ def test_scaling_diagonal_maps_the_unit_cone_onto_k_mu():
     (lambda: in_cone(np.ones((2, 3)), 0.1, -1.0), "mu_y must be finite and >= 0"),
     (lambda: in_polar_cone(np.ones((2, 4)), 0.1, 0.1), "v must have shape"),
     (lambda: modified_velocity([[0.0, np.nan, 0.0]], 0.1, 0.1), "u contains non-finite"),
-    (lambda: rotation_matrix(np.nan), "angle must be finite"),
+    (lambda: local_frame(np.nan), "angle must be finite"),
     (lambda: to_local(np.ones((2, 2)), 0.0), "v_world must have shape"),
     (lambda: to_global(np.ones((2, 3)), np.inf), "angle must be finite"),
 ])

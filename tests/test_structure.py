@@ -130,3 +130,11 @@ def test_one_atomic_writer():
 def test_one_command_codec():
     # a Command written out field by field, or built from an array row, only in the codec
     assert sources_matching(r"[\"']dtheta_deg[\"']\s*:|Command\(dx=float") == ["pushplan/config/commands.py"]
+
+
+def test_public_names_are_the_exports():
+    import fe_contact
+    import pushplan
+
+    assert sorted(pushplan.__all__) == sorted(pushplan._EXPORTS)
+    assert all(hasattr(fe_contact, n) for n in fe_contact.__all__)

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .friction import local_frame
+
 __all__ = ["ContactBody", "ContactSet", "horizontal_frame", "stack_bodies"]
 
 
@@ -34,11 +36,11 @@ def horizontal_frame(up: bool, angle: float) -> np.ndarray:
     """Rotation (3, 3) from world to the contact frame ``(n, t_x, t_y)`` of a
     horizontal plane: ``n = e_z`` (``up``: the floor) or ``-e_z`` (a pad
     above the block), ``t_x = (cos angle, sin angle, 0)`` (``angle`` from world
-    x, counter-clockwise seen from +z, rad), ``t_y = n x t_x``."""
-    c, s = math.cos(angle), math.sin(angle)
-    n = np.array([0.0, 0.0, 1.0 if up else -1.0])
-    t_x = np.array([c, s, 0.0])
-    return np.array([n, t_x, np.cross(n, t_x)])
+    x, counter-clockwise seen from +z, rad), ``t_y = n x t_x``: the orthotropy
+    frame :func:`~fe_contact.contact.friction.local_frame`, with ``n`` and
+    ``t_y`` reversed for a pad."""
+    T = local_frame(angle)
+    return T if up else T * np.array([[-1.0], [1.0], [-1.0]])
 
 
 @dataclass(frozen=True)

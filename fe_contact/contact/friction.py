@@ -27,7 +27,7 @@ __all__ = [
     "in_polar_cone",
     "modified_velocity",
     "project_elliptic_cone",
-    "rotation_matrix",
+    "local_frame",
     "to_local",
     "to_global",
     "scaling_diagonal",
@@ -243,38 +243,76 @@ def _project(a, mx, my) -> np.ndarray:
                            np.ascontiguousarray(my, dtype=float))
 
 
-def rotation_matrix(angle) -> np.ndarray:
-    """In-plane rotation(s) ``R(angle)`` mapping local tangent coordinates to world x, y.
+def local_frame(angle) -> np.ndarray:
+    """Rotation(s) from world ``(x, y, z)`` to the local contact basis ``(n, t_x, t_y)``.
 
-    Returns shape (2, 2) for a scalar angle, (n, 2, 2) for an array.
+    The orthotropy axes are turned by ``angle`` (rad) counter-clockwise from world
+    x, seen from +z: ``t_x = (cos a, sin a, 0)``, ``t_y = (-sin a, cos a, 0)``,
+    ``n = e_z`` (sect. 3: ``mu_x`` acts along ``t_x``, ``mu_y`` along ``t_y``).
+    The one implementation of the orthotropy frame: the FE step, the conversions
+    below and ``pushplan``'s reduced model all use it.
+
+    Parameters
+    ----------
+    angle : float or array_like, shape (n,)
+        Orthotropy angle(s), rad.
+
+    Returns
+    -------
+    T : ndarray, shape (3, 3), or (n, 3, 3) for an array of angles
+        ``v_local = T @ v_world``; rows are ``n``, ``t_x``, ``t_y``.  Its block
+        ``T[1:, :2].T`` maps local tangent coordinates to world ``(x, y)``.
     """
     th = np.asarray(angle, dtype=float)
     if not np.all(np.isfinite(th)):
         raise ValueError(f"angle must be finite, got {angle}")
-    c, s = np.cos(th), np.sin(th)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    # a scalar through math, as the FE model always computed it (bit-identical results)
+    c, s = (np.cos(th), np.sin(th)) if th.ndim else (np.float64(math.cos(th)), np.float64(math.sin(th)))
+    zero, one = np.zeros_like(th), np.ones_like(th)
+    rows = [np.stack(r, -1) for r in ((zero, zero, one), (c, s, zero), (-s, c, zero))]
+    return np.stack(rows, -2)
 
 
 def to_local(v_world, angle) -> np.ndarray:
     """World ``(x, y, z)`` vectors, shape (n, 3), to local ``(n, t_x, t_y)``."""
     v = _as_contacts("v_world", v_world)
-    R = rotation_matrix(angle)
-    t = np.einsum("...ji,...j->...i", R, v[:, :2])
-    return np.column_stack([v[:, 2], t])
+    return np.einsum("...ij,...j->...i", local_frame(angle), v)
 
 
 def to_global(v_local, angle) -> np.ndarray:
     """Local ``(n, t_x, t_y)`` vectors, shape (n, 3), to world ``(x, y, z)``."""
     v = _as_contacts("v_local", v_local)
-    R = rotation_matrix(angle)
-    xy = np.einsum("...ij,...j->...i", R, v[:, 1:])
-    return np.column_stack([xy, v[:, 0]])
+    return np.einsum("...ji,...j->...i", local_frame(angle), v)
 
 
-def scaling_diagonal(mu_x, mu_y, n: int) -> np.ndarray:
-    """Per-contact ``D = diag(1, mu_x, mu_y)`` as an array of shape (n, 3).
+def scaling_diagonal(mu_x, mu_y) -> tuple[np.ndarray, np.ndarray]:
+    """The local solvers' change of variables to an isotropic cone, per contact.
 
-    ``FC(W, q, M)`` equals the isotropic ``FC(D W D, D q, mu = 1)`` with ``r = D s``.
+    With ``mu = max(mu_x, mu_y)`` and ``D = diag(1, mu_x / mu, mu_y / mu)``,
+    ``r = D s`` maps the isotropic cone ``||s_t|| <= mu s_n`` onto ``K_mu`` (eq. 15),
+    so ``FC(W, q, M)`` is the isotropic ``FC(D W D, D q, mu)`` (the form Siconos'
+    Alart-Curnier solver takes).  An isotropic contact keeps ``D = I`` and its
+    own ``mu``: scaling it to the unit cone (``D = diag(1, mu, mu)``) would
+    multiply its tangential flexibility by ``mu^2`` against the normal one, a
+    condition number of 1e6 at ``mu = 1000``.  A frictionless contact keeps
+    ``D = I`` and ``mu = 0``.
+
+    Parameters
+    ----------
+    mu_x, mu_y : ndarray, shape (n,)
+        Friction coefficients (>= 0).
+
+    Returns
+    -------
+    D : ndarray, shape (n, 3)
+        The diagonals, dimensionless.
+    mu : ndarray, shape (n,)
+        Coefficient of each isotropic cone.
     """
-    mx, my = _as_coefficients(mu_x, mu_y, n)
-    return np.column_stack([np.ones(n), mx, my])
+    mx, my = np.asarray(mu_x, dtype=float), np.asarray(mu_y, dtype=float)
+    mu = np.maximum(mx, my)
+    frictionless = mu == 0
+    safe = np.where(frictionless, 1.0, mu)
+    D = np.column_stack([np.ones(mu.shape[0]), np.where(frictionless, 1.0, mx / safe),
+                         np.where(frictionless, 1.0, my / safe)])
+    return D, mu

@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 from .alart_curnier import (alart_curnier, factorise_newton_matrix, gmres, jacobian_product, lu_step, newton_matrix,
                             well_conditioned)
-from .friction import _as_coefficients, _modified, _project, project_elliptic_cone
+from .friction import _as_coefficients, _modified, _project, project_elliptic_cone, scaling_diagonal
 from .uzawa import uzawa
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
@@ -314,13 +314,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
 def _isotropic_scaling(W, mx, my):
     """The isotropic problem of each contact and its Alart-Curnier parameters.
 
-    Per contact ``mu = max(mu_x, mu_y)`` and ``D = diag(1, mu_x / mu, mu_y /
-    mu)``: ``r = D s`` maps ``||s_t|| <= mu s_n`` onto ``K_mu``.  An isotropic
-    contact keeps ``D = I`` and its own ``mu``: scaling it to the unit cone
-    (``D = diag(1, mu, mu)``) would multiply its tangential flexibility by
-    ``mu^2`` against the normal one, a condition number of 1e6 at ``mu =
-    1000`` that neither Newton nor Siconos' NSN_AC survive well.  Frictionless
-    contacts keep ``D = I`` with ``mu = 0``.
+    ``D`` and ``mu`` from :func:`fe_contact.contact.friction.scaling_diagonal`:
+    ``r = D s`` maps ``||s_t|| <= mu s_n`` onto ``K_mu``.
 
     ``rho = (rho_n, rho_t)`` per contact is the inverse of the normal
     diagonal entry and of the largest eigenvalue of the tangential 2x2 block
@@ -339,10 +334,7 @@ def _isotropic_scaling(W, mx, my):
         Mean positive diagonal entry of ``D W D`` (the scale of the regularisation).
     """
     n = mx.shape[0]
-    mu = np.maximum(mx, my)
-    frictionless = mu == 0
-    safe = np.where(frictionless, 1.0, mu)
-    D = np.column_stack([np.ones(n), np.where(frictionless, 1.0, mx / safe), np.where(frictionless, 1.0, my / safe)])
+    D, mu = scaling_diagonal(mx, my)
     fixed = np.column_stack([np.zeros(n, bool), D[:, 1:] == 0])
     d = D.ravel()
     diag = (np.diag(W) * d * d).reshape(n, 3)

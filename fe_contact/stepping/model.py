@@ -11,7 +11,6 @@ can branch from any state.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -24,18 +23,10 @@ from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_
 from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
 
 from ..contact.bodies import ContactBody, ContactSet, horizontal_frame, stack_bodies
+from ..contact.friction import local_frame
 from ..contact.local_solver import METHODS as LOCAL_METHODS
+from .command import Command, _finite  # noqa: F401  (Command re-exported)
 from .report import IterLog, NodeStatus, Status, StepReport  # noqa: F401  (re-exported)
-
-
-def _finite(name: str, value: float) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -140,17 +131,6 @@ class SolverOptions:
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-
-
-def local_frame(angle: float) -> np.ndarray:
-    """Rotation from world ``(x, y, z)`` to the local contact basis ``(n, t_x, t_y)``.
-
-    Returns
-    -------
-    T : ndarray, shape (3, 3)
-        ``v_local = T @ v_world``; rows are ``n = e_z``, ``t_x``, ``t_y``.
-    """
-    return horizontal_frame(True, angle)
 
 
 @dataclass(frozen=True)
@@ -350,44 +330,6 @@ def build_model(
         quadrature=quadrature,
         options=options or SolverOptions(),
     )
-
-
-@dataclass(frozen=True)
-class Command:
-    """One load step: rigid motion increment of the upper face.
-
-    Parameters
-    ----------
-    dx, dy, dz : float
-        Translation increment of the upper face, m (world frame).
-    dtheta : float
-        Rotation increment about the vertical axis through the current upper-face
-        centre, rad, counter-clockwise seen from +z.
-    open : float
-        Fraction, in [0, 1], of the gripper's load on the upper face released in
-        this step (an open release, :mod:`fe_contact.stepping.release`).  A step with
-        ``open > 0``, or any step once the grip is partly released, moves no
-        gripper: its ``dx`` ... ``dtheta`` must be 0.
-    """
-
-    dx: float = 0.0
-    dy: float = 0.0
-    dz: float = 0.0
-    dtheta: float = 0.0
-    open: float = 0.0
-
-    def __post_init__(self):
-        for name in ("dx", "dy", "dz", "dtheta", "open"):
-            object.__setattr__(self, name, _finite(name, getattr(self, name)))
-        if not 0.0 <= self.open <= 1.0:
-            raise ValueError(f"open must be in [0, 1], got {self.open}")
-        if self.open > 0 and any((self.dx, self.dy, self.dz, self.dtheta)):
-            raise ValueError("a command that opens the gripper cannot also move it (dx, dy, dz, dtheta must be 0)")
-
-    @property
-    def moves(self) -> bool:
-        """The command moves the gripper."""
-        return any((self.dx, self.dy, self.dz, self.dtheta))
 
 
 class TangentCache:

@@ -8,6 +8,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .command import Command
+
+
 class Status(enum.Enum):
     """Outcome of a load step."""
 
@@ -52,7 +55,7 @@ class StepReport:
     status: Status
     message: str
     step_index: int
-    command: "Command"  # fe_contact.stepping.model.Command
+    command: Command
     displacement: np.ndarray  # (n_nodes, 3) m
     reaction_local: np.ndarray  # (n_lower, 3) N, (n, t_x, t_y)
     reaction_world: np.ndarray  # (n_lower, 3) N, (x, y, z)

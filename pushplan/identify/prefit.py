@@ -5,7 +5,7 @@ While the lower face slides, the drive force ``g`` (minus the tangential force o
 gripper) is on the limit surface and the slip increment ``s`` is along its normal
 (paper eq. 23-30, summed over the face):
 
-    g = N R M^2 R^T s / ||M R^T s||,     M = diag(mu_x, mu_y),  R = rotation(angle),
+    g = N R M^2 R^T s / ||M R^T s||,     M = diag(mu_x, mu_y),  R = fe_contact.local_frame(angle)[1:, :2]^T,
 
 with ``N`` the normal force (``force_z``).  Each sliding row gives two equations in
 ``(mu_x, mu_y, angle)``; they are solved by least squares (no FE rollout).  The
@@ -18,6 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from fe_contact import local_frame
 
 from ..config.observations import Observations
 
@@ -48,8 +50,7 @@ def slip_directions(obs: Observations, rows) -> np.ndarray:
 def limit_force(theta, s: np.ndarray) -> np.ndarray:
     """``g / N`` for slip directions ``s`` (n, 2) and ``theta = (mu_x, mu_y, angle_deg)``."""
     mu_x, mu_y, angle = theta[0], theta[1], math.radians(theta[2])
-    c, si = math.cos(angle), math.sin(angle)
-    R = np.array([[c, -si], [si, c]])
+    R = local_frame(angle)[1:, :2].T  # orthotropy (t_x, t_y) -> world (x, y)
     m = np.array([mu_x, mu_y])
     local = s @ R  # rows R^T s
     return (m**2 * local) @ R.T / np.linalg.norm(m * local, axis=1, keepdims=True)

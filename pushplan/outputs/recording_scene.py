@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from fe_contact import local_frame
+
 FLOOR_COLOUR = (200, 200, 200, 90)
 FRICTION_COLOUR = (250, 150, 30)
 GRIPPER_COLOUR = (90, 90, 110, 120)
@@ -37,11 +39,10 @@ def friction_ellipse(rr, size, friction: dict) -> list:
     angle = math.radians(float(friction.get("angle_deg", 0.0)))
     scale = 0.75 * 0.5 * min(size[0], size[1]) / max(mu_x, mu_y, 1e-12)
     t = np.linspace(0.0, 2.0 * np.pi, ELLIPSE_POINTS)
-    c, s = math.cos(angle), math.sin(angle)
-    local = np.column_stack([mu_x * np.cos(t), mu_y * np.sin(t)]) * scale
-    world = np.column_stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1],
-                             np.full(len(t), 1e-6 * size[2])])
-    axes = scale * np.array([[mu_x * c, mu_x * s, 0.0], [-mu_y * s, mu_y * c, 0.0]])
+    T = local_frame(angle)  # rows n, t_x, t_y in world coordinates
+    local = np.column_stack([np.zeros(len(t)), mu_x * np.cos(t), mu_y * np.sin(t)]) * scale
+    world = local @ T + [0.0, 0.0, 1e-6 * size[2]]
+    axes = scale * np.array([mu_x, mu_y])[:, None] * T[1:]
     return [rr.LineStrips3D([world], colors=[FRICTION_COLOUR],
                             labels=[f"friction ellipse mu_x = {mu_x:g}, mu_y = {mu_y:g}"]),
             rr.Arrows3D(origins=np.zeros((2, 3)), vectors=axes, colors=[FRICTION_COLOUR],

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact import StepReport
+from fe_contact import StepReport, local_frame
 
 from ..config.validate import number
 from ..errors import InputError
@@ -85,9 +85,9 @@ class PushParameters:
 
     @property
     def frame(self) -> np.ndarray:
-        """(2, 2) rotation from the orthotropy frame ``(t_x, t_y)`` to world ``(x, y)``."""
-        c, s = math.cos(self.angle), math.sin(self.angle)
-        return np.array([[c, -s], [s, c]])
+        """(2, 2) map from orthotropy-frame coordinates ``(t_x, t_y)`` to world ``(x, y)``
+        (the tangential block of :func:`fe_contact.local_frame`, transposed)."""
+        return local_frame(self.angle)[1:, :2].T
 
     @property
     def lag_scale(self) -> float:
