@@ -114,29 +114,29 @@ class Scenario:
         (``what`` names the override in messages).  Every model of every command is built
         here, after the memory budget (:func:`~pushplan.config.budget.check_memory`).
 
+        Every value was checked where it was parsed (:func:`parse_scenario`, the
+        plan and the command line for the overrides): a ``ValueError`` from
+        ``fe_contact`` here is a bug and keeps its traceback.
+
         Raises
         ------
         InputError
-            ``fe_contact`` rejects a value (its message names it), or the mesh's
-            estimated memory exceeds the available memory.
+            The mesh's estimated memory exceeds the available memory.
         """
         from .budget import check_memory
 
         check_memory(elements or self.elements, quadrature or self.quadrature,
                      what=what or ("block.elements" if elements is None else "the mesh"))
-        try:
-            return Model(
-                mesh=block_mesh(self.size, elements or self.elements),
-                material=Material(self.young, self.poisson, self.density, self.material_model),
-                friction=Friction(self.mu_x, self.mu_y, math.radians(self.angle_deg)),
-                quadrature=quadrature or self.quadrature,
-                options=self.solver,
-                gripper=self.gripper or Gripper(),
-                pad=self.pad,
-                element=self.element,
-            )
-        except ValueError as exc:  # fe_contact's own checks at its public boundary
-            raise InputError(f"scenario {self.name}: {exc}") from None
+        return Model(
+            mesh=block_mesh(self.size, elements or self.elements),
+            material=Material(self.young, self.poisson, self.density, self.material_model),
+            friction=Friction(self.mu_x, self.mu_y, math.radians(self.angle_deg)),
+            quadrature=quadrature or self.quadrature,
+            options=self.solver,
+            gripper=self.gripper or Gripper(),
+            pad=self.pad,
+            element=self.element,
+        )
 
     def to_dict(self) -> dict:
         """The scenario as TOML-/JSON-ready tables (SI units): what
@@ -208,10 +208,10 @@ def _solver(table) -> SolverOptions:
     for k, most in (("local_max_iter", MAX_LOCAL_ITER), ("newton_max_iter", MAX_NEWTON_ITER)):
         if k in t:
             t.integer(k, minimum=1, maximum=most)
-    try:
-        return SolverOptions(**values)
-    except ValueError as exc:  # a check of fe_contact's own not repeated above; its message names the field
-        raise InputError(f"solver.{exc}") from None
+    for k in ("release_stiffness", "pad_regularisation"):
+        if k in t:
+            t.number(k, positive=True)
+    return SolverOptions(**values)  # every field checked above: a ValueError here is a bug
 
 
 def _stiffness(t: Table, k: str) -> float:

@@ -73,7 +73,7 @@ def read_recording(path) -> RecordedRun:
         raise InputError(f"recording not found: {path}")
     try:
         chunks = RrdReader(path).stream().filter(content="/run/**").to_chunks()
-    except Exception as exc:  # the bindings raise assorted types for a corrupt file
+    except (RuntimeError, OSError) as exc:  # rerun's bindings: a file unreadable or not an RRD
         raise InputError(f"cannot read recording {path}: {' '.join(str(exc).split())[:200]}") from None
     info, rows = None, []
     for chunk in chunks:

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, rest_check, step
 
 from ..config.scenario import pad_friction_dict
-from ..errors import InputError
 from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
 
 
@@ -102,13 +101,14 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
 
     Raises
     ------
-    InputError
-        A command is not a ``fe_contact.Command``.
+    TypeError
+        A command is not a ``fe_contact.Command`` (a caller's bug: commands from
+        files are parsed into ``Command`` by :mod:`pushplan.config.commands`).
     """
     commands = tuple(commands)
     for i, c in enumerate(commands):
         if not isinstance(c, Command):
-            raise InputError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
+            raise TypeError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
     owns_start = state is None  # then every state is ours, and a refresh may free the previous tangent
     start = initial_state(model) if state is None else state
     run = Run(model=model, state=start, summary=RunSummary(scenario=scenario or {}),
