@@ -20,7 +20,7 @@ from pushplan.config import ScenarioError, parse_scenario
 from pushplan.config.plan import parse_plan
 from pushplan.planning import plan
 from pushplan.planning.nlp import ReducedPlanner
-from pushplan.planning.reduced_model import PushParameters, calibrate, simulate_reduced, steady_lag
+from pushplan.planning.reduced_model import PushParameters, calibrate, push_law, simulate_reduced, steady_lag
 from pushplan.planning.target import naive_commands
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -174,6 +174,27 @@ def test_nlp_of_a_rigid_block_is_the_naive_push():
     rigid = PushParameters(mu_x=0.3, mu_y=0.05, angle=0.4, normal_force=9e5, compliance=1e-18)
     sol = ReducedPlanner(rigid, spec).solve()
     np.testing.assert_allclose(sol.commands, naive_commands(spec), atol=1e-4 * spec.max_step)
+
+
+def test_push_law_on_the_limit_surface_is_the_elliptic_law():
+    """The one push law (CasADi, used by the NLP and the return mapping): a force on the
+    limit surface (rho = 1) slips along its normal and leads by the closed-form lag
+    C N M^2 s / ||M s|| of that slip direction s; below it (lam = 0) nothing slips."""
+    p = PushParameters(mu_x=0.3, mu_y=0.05, angle=0.7, normal_force=1e3, compliance=1e-7,
+                       torsion_compliance=2e-3, max_torque=4.0)
+    law = push_law(p)
+    a = np.array([0.6, -0.8, 0.0])
+    p0 = np.array([1e-3, -2e-3, 0.1])
+    p1, u1, g = (np.asarray(v).ravel() for v in law(p0, a, 1.0, 2e-4))
+    slip = p1[:2] - p0[:2]
+    np.testing.assert_allclose(u1[:2] - p1[:2], steady_lag(p, slip), rtol=1e-12)
+    np.testing.assert_allclose(u1 - p1, [*(p.compliance * g[:2]), p.torsion_compliance * g[2]], rtol=1e-12)
+    local = p.frame.T @ g[:2]  # on the limit surface ||(f_1 / N mu_x, f_2 / N mu_y, tau / tau_max)|| = 1
+    assert math.hypot(local[0] / 300.0, local[1] / 50.0, g[2] / 4.0) == pytest.approx(1.0, rel=1e-12)
+    twist, _, torque = (np.asarray(v).ravel() for v in law(p0, [0.0, 0.0, 1.0], 1.0, 2e-4))
+    assert torque[2] == 4.0 and twist[2] - p0[2] == pytest.approx(2e-4 * math.sqrt(0.3 * 0.05) * 1e3 / 4.0)
+    stuck, _, _ = (np.asarray(v).ravel() for v in law(p0, a, 0.5, 0.0))
+    np.testing.assert_array_equal(stuck, p0)
 
 
 # -- [plan] validation --------------------------------------------------------------------

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config.plan import PlanSpec
-from .reduced_model import PushParameters, simulate_reduced
+from .reduced_model import PushParameters, push_law, simulate_reduced
 from .springback import Springback
 from .target import naive_commands
 
@@ -52,8 +52,10 @@ class ReducedPlanner:
     Per step k: the unit direction ``a_k`` of the generalised drive force on the
     limit surface (orthotropy frame, scaled by the friction limits), its level
     ``rho_k`` in [0, 1] (1 = on the surface) and the slip length ``sigma_k >= 0`` (in
-    units of ``max_step``).  Poses follow explicitly: the lower face slips along the
-    surface normal, the upper face leads it by the elastic lag.
+    units of ``max_step``).  Poses follow explicitly through the one
+    :func:`~.reduced_model.push_law` (the lower face slips along the surface normal,
+    the upper face leads it by the elastic lag), the law the return mapping
+    :func:`~.reduced_model.simulate_reduced` evaluates numerically.
 
     ``initial_lag`` (3,) ``upper - lower`` at the start (m, m, rad): zero from the pressed
     block at rest; a re-plan starts from the loaded state the executed pushes left, whose
@@ -76,23 +78,15 @@ class ReducedPlanner:
         sigma = opti.variable(1, K)
         target = opti.parameter(3)
         modifier = opti.parameter(3)
-        R = ca.DM(params.frame)
-        N, mx, my = params.normal_force, params.mu_x, params.mu_y
-        mbar = math.sqrt(mx * my)
+        law = push_law(params)
         lag0 = np.asarray(initial_lag, float) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
         lower, upper, cmds = [ca.DM.zeros(3, 1)], [ca.DM(lag0)], []
         effort = 0
         for k in range(K):
             a = A[:, k]
-            slip_xy = spec.max_step * sigma[k] * (R @ ca.vertcat(mbar * a[0] / mx, mbar * a[1] / my))
-            lag_xy = params.compliance * rho[k] * N * (R @ ca.vertcat(mx * a[0], my * a[1]))
-            if spec.yaw_targeted:
-                slip_th = spec.max_step * sigma[k] * mbar * a[2] * N / params.max_torque
-                lag_th = params.torsion_compliance * rho[k] * params.max_torque * a[2]
-            else:
-                slip_th = lag_th = 0
-            p = lower[-1] + ca.vertcat(slip_xy, slip_th)
-            u = p + ca.vertcat(lag_xy, lag_th)
+            # without a yaw target the force has no torque and the slip no yaw
+            p, u, _ = law(lower[-1], a if spec.yaw_targeted else ca.vertcat(a, 0), rho[k],
+                          spec.max_step * sigma[k])
             du = u - upper[-1]
             lower.append(p)
             upper.append(u)
@@ -194,8 +188,10 @@ class ReducedPlanner:
 
 
 def model_consistency(params: PushParameters, solution: NlpSolution) -> float:
-    """Largest difference (m or rad) between the NLP's lower-face poses and the reduced
-    model re-simulated with the NLP's commands (the complementarity check)."""
+    """Largest difference (m or rad) between the NLP's lower-face poses and the return
+    mapping of its commands (:func:`simulate_reduced`): both go through the one
+    :func:`push_law`, so this measures the relaxation of the NLP's complementarity
+    ``sigma (1 - rho) <= COMPLEMENTARITY_EPS`` (slip off the limit surface)."""
     cmds = solution.commands.copy()
     if not params.rotation:
         cmds[:, 2] = 0.0

@@ -20,7 +20,10 @@ projection of the trial force onto the ellipsoid in the compliance metric.  In
 steady sliding this reproduces the lag ``L(s) = C N M^2 s / ||M s||`` of the
 elliptic law for a slip direction ``s``.
 
-The parameters are calibrated from FE rollouts (:func:`calibrate`); translation-only
+The law of a step given the force level, direction and slip is written once, as a
+CasADi ``Function`` (:func:`push_law`): the planning NLP uses it symbolically, and
+:func:`simulate_reduced` evaluates it numerically after the return mapping.  The
+parameters are calibrated from FE rollouts (:func:`calibrate`); translation-only
 models leave the torsional parameters unset and ignore rotation.
 """
 
@@ -126,23 +129,68 @@ def steady_lag(params: PushParameters, direction) -> np.ndarray:
     return params.compliance * params.normal_force * (R @ (m**2 * local)) / np.linalg.norm(m * local)
 
 
-def _project(g_trial: np.ndarray, w: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Closest point of the ellipsoid ``sum(q g^2) <= 1`` to ``g_trial`` in the
-    metric ``diag(w)`` (all in the orthotropy frame).  ``g_i = g_tr_i / (1 + gamma
-    q_i / w_i)`` with the scalar ``gamma >= 0`` found by Newton's method, which
-    converges monotonically from 0 as the constraint is convex and decreasing."""
-    if (q * g_trial**2).sum() <= 1.0:
-        return g_trial
+def push_law(params: PushParameters):
+    """The reduced push law of one step, written once: a CasADi ``Function``
+    evaluated numerically by :func:`simulate_reduced` and symbolically by the
+    planning NLP (:mod:`.nlp`), as rockit does with its models.
+
+    ``(p, a, rho, lam) -> (p_next, u_next, g)``: from the lower-face pose ``p``
+    (3,) ``(x, y, yaw)``, the generalised drive force on the limit surface ``F(g) =
+    rho`` in the orthotropy frame, ``g_local = rho (N mu_x a_1, N mu_y a_2,
+    tau_max a_3)`` with the unit direction ``a`` (3,), and the slip multiplier
+    ``lam >= 0`` (m):
+
+        p_next = p + lam R_3 (mbar a_1 / mu_x, mbar a_2 / mu_y, mbar a_3 N / tau_max)
+        u_next = p_next + R_3 W g_local,          g = R_3 g_local,
+
+    ``mbar = sqrt(mu_x mu_y)``, ``R_3`` the orthotropy frame on ``(x, y)`` (yaw
+    unchanged).  The slip is along the normal of the limit surface (associated
+    slip, paper eq. 23-30); it may be non-zero only on the surface (``rho = 1``),
+    which the return mapping and the NLP's complementarity enforce.  A
+    translation-only model has no yaw terms (``a_3`` is ignored).  Units: m, rad,
+    N, N m.
+    """
+    import casadi as ca
+
+    R = ca.DM(params.frame)
+    N, mx, my, C = params.normal_force, params.mu_x, params.mu_y, params.compliance
+    mbar = math.sqrt(mx * my)
+    p, a = ca.SX.sym("p", 3), ca.SX.sym("a", 3)
+    rho, lam = ca.SX.sym("rho"), ca.SX.sym("lam")
+    slip_xy = lam * (R @ ca.vertcat(mbar * a[0] / mx, mbar * a[1] / my))
+    lag_xy = C * rho * N * (R @ ca.vertcat(mx * a[0], my * a[1]))
+    g_xy = rho * (R @ ca.vertcat(N * mx * a[0], N * my * a[1]))
+    if params.rotation:
+        tau = params.max_torque
+        slip_th = lam * mbar * a[2] * N / tau
+        lag_th = params.torsion_compliance * rho * tau * a[2]
+        g_th = rho * tau * a[2]
+    else:
+        slip_th = lag_th = g_th = 0
+    p_next = p + ca.vertcat(slip_xy, slip_th)
+    u_next = p_next + ca.vertcat(lag_xy, lag_th)
+    return ca.Function("push_law", [p, a, rho, lam], [p_next, u_next, ca.vertcat(g_xy, g_th)],
+                       ["p", "a", "rho", "lam"], ["p_next", "u_next", "g"])
+
+
+def _return_mapping(trial: np.ndarray, w: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, float]:
+    """Closest point ``g`` of the ellipsoid ``sum(q g^2) <= 1`` to ``trial`` in the
+    metric ``diag(w)`` (all in the orthotropy frame) and its multiplier ``gamma``:
+    ``g_i = g_tr_i / (1 + gamma q_i / w_i)``, the slip being ``gamma q g``.  ``gamma >=
+    0`` is found by Newton's method, which converges monotonically from 0 as the
+    constraint is convex and decreasing."""
+    if (q * trial**2).sum() <= 1.0:
+        return trial, 0.0
     gamma = 0.0
     r = q / w
     for _ in range(200):
         d = 1.0 + gamma * r
-        phi = (q * g_trial**2 / d**2).sum() - 1.0
+        phi = (q * trial**2 / d**2).sum() - 1.0
         if phi <= PROJECTION_TOL:
             break
-        dphi = (-2.0 * q * g_trial**2 * r / d**3).sum()
+        dphi = (-2.0 * q * trial**2 * r / d**3).sum()
         gamma -= phi / dphi
-    return g_trial / (1.0 + gamma * r)
+    return trial / (1.0 + gamma * r), gamma
 
 
 @dataclass(frozen=True)
@@ -168,6 +216,11 @@ class ReducedTrajectory:
 def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
     """Run upper-face commands through the reduced model from the pressed, unloaded state.
 
+    Each step is the backward-Euler return mapping (closest-point projection of the
+    trial force on the limit surface in the compliance metric), whose force level
+    ``rho``, direction ``a`` and slip multiplier ``lam = gamma rho / (N mbar)`` then
+    go through :func:`push_law`.
+
     Parameters
     ----------
     commands : array, shape (K, 3)
@@ -183,31 +236,25 @@ def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
         raise ValueError(f"commands must be a finite (K, 3) array, got shape {np.shape(commands)}")
     if not params.rotation and np.any(u[:, 2] != 0):
         raise ValueError("commands rotate the upper face but the model has no torsional parameters")
-    R = params.frame
-    n = params.normal_force
-    if params.rotation:
-        w = np.array([params.compliance, params.compliance, params.torsion_compliance])
-        q = 1.0 / np.array([n * params.mu_x, n * params.mu_y, params.max_torque]) ** 2
-    else:
-        w = np.array([params.compliance, params.compliance, 1.0])
-        q = np.array([1.0 / (n * params.mu_x) ** 2, 1.0 / (n * params.mu_y) ** 2, 0.0])
+    R, n = params.frame, params.normal_force
+    limits = np.array([n * params.mu_x, n * params.mu_y, params.max_torque if params.rotation else math.inf])
+    w = np.array([params.compliance, params.compliance, params.torsion_compliance if params.rotation else 1.0])
+    law = push_law(params)
     K = len(u)
-    upper = np.zeros((K + 1, 3))
-    lower = np.zeros((K + 1, 3))
-    force = np.zeros((K + 1, 3))
+    upper, lower, force = np.zeros((K + 1, 3)), np.zeros((K + 1, 3)), np.zeros((K + 1, 3))
     sliding = np.zeros(K + 1, dtype=bool)
-    g_local = np.zeros(3)
     for k in range(K):
         upper[k + 1] = upper[k] + u[k]
         lag = upper[k + 1] - lower[k]  # trial lag: the lower face has not moved yet
-        lag_local = np.array([*(R.T @ lag[:2]), lag[2]])
-        trial = lag_local / w
-        g_local = _project(trial, w, q)
-        sliding[k + 1] = not np.array_equal(g_local, trial)
-        lag_local = w * g_local
-        lag_local[2] *= params.rotation
-        lower[k + 1] = upper[k + 1] - np.array([*(R @ lag_local[:2]), lag_local[2]])
-        force[k + 1] = np.array([*(R @ g_local[:2]), g_local[2] * params.rotation])
+        trial = np.array([*(R.T @ lag[:2]), lag[2]]) / w
+        g_local, gamma = _return_mapping(trial, w, 1.0 / limits**2)
+        sliding[k + 1] = gamma > 0
+        scaled = g_local / limits  # F(g) = |scaled|
+        rho = float(np.linalg.norm(scaled))
+        a = scaled / rho if rho > 0 else np.array([1.0, 0.0, 0.0])
+        lam = gamma * rho / (n * math.sqrt(params.mu_x * params.mu_y))
+        p_next, _, g = law(lower[k], a, rho, lam)
+        lower[k + 1], force[k + 1] = np.asarray(p_next).ravel(), np.asarray(g).ravel()
     return ReducedTrajectory(upper=upper, lower=lower, force=force, sliding=sliding)
 
 
