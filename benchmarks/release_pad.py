@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from _common import write_results
-from fe_contact import Command, Friction, Material, Model, Release, block_mesh, release_to_rest, run, step
+from fe_contact import Command, Friction, Material, Model, Release, block_mesh, release_to_rest, run
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOOR = (0.6, 0.2, math.radians(20.0))
@@ -36,7 +36,7 @@ def release(ratio, steps: int) -> dict:
               quadrature=2, pad=pad)
     t0 = time.perf_counter()
     state, reports = run(m, [Command(dz=-4e-4), PUSH, PUSH])
-    _, rel, rest = release_to_rest(m, state, Release("lift", steps, max_steps=2000), step, reports[-1])
+    _, rel, rest = release_to_rest(m, state, Release("lift", steps, max_steps=2000), reports[-1])
     return {"ratio": ratio, "loaded": reports[-1].lower_centroid[:2].tolist(),
             "upper": reports[-1].upper_centroid[:2].tolist(), "rest": rel[-1].lower_centroid[:2].tolist(),
             "lag": float(np.linalg.norm(reports[-1].lag)), "status": rest.status, "release_steps": len(rel),

@@ -8,7 +8,7 @@ Public API::
     model = Model(block_mesh(size, divisions), Material(E, nu), Friction(mu_x, mu_y, angle))
     state = initial_state(model)
     state, report = step(model, state, Command(dz=-1e-4))
-    state, reports = run_release(model, state, Release("lift", 5), step, report)
+    state, reports = run_release(model, state, Release("lift", 5), report)
 
 Beyond the paper: ``Material(E, nu, model="neo_hookean")`` a compressible
 Neo-Hookean law and ``Model(..., element="fbar")`` an element that does not lock
@@ -28,7 +28,7 @@ Layers, lowest first (a subpackage imports only from those before it)::
     io/        FCLIB HDF5 interchange of local problems
     stepping/  Model / State, predictor, Newton loop with the flexibility
                matrix (sect. 8, Box 3/4), measurement, compliant gripper,
-               release, ``step``
+               release, ``step`` and the one loop over steps (``run``)
 
 This package knows nothing about planning, robots, MuJoCo or rerun.
 """
@@ -52,10 +52,11 @@ from .stepping.model import (
     build_model,
     initial_state,
 )
-from .stepping.release import Release, ReleaseSchedule, Rest, release_to_rest, rest_check, run_release
+from .stepping.release import Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
 from .stepping.derivatives import RolloutDerivatives, check_derivatives, rollout_derivatives
-from .stepping.step import run, step
+from .stepping.sequence import StepSequence, release_to_rest, run, run_release
+from .stepping.step import step
 from .stepping.warmup import warm_up
 from .linalg.threads import limit_blas_threads
 
@@ -80,6 +81,7 @@ __all__ = [
     "State",
     "Status",
     "StepReport",
+    "StepSequence",
     "TangentCache",
     "block_mesh",
     "build_model",

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fe_contact import (Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh,
-                        release_to_rest, run, step)
+                        release_to_rest, run)
 from fe_contact.contact.bodies import ContactBody, horizontal_frame, stack_bodies
 
 INSENSITIVE = 0.005  # issue: rest pose moves < 0.5 % of the lag when a tolerance / regularisation is / 10
@@ -35,7 +35,7 @@ def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0):
     m = model(ratio, beta, tol)
     state, reports = run(m, [Command(dz=-4e-4), PUSH, PUSH])
     assert all(r.converged for r in reports), reports[-1].message
-    _, release, rest = release_to_rest(m, state, Release("lift", steps, max_steps=1000, height=height), step,
+    _, release, rest = release_to_rest(m, state, Release("lift", steps, max_steps=1000, height=height),
                                        reports[-1])
     return reports[-1], release, rest, m
 
@@ -123,7 +123,7 @@ def test_a_pad_release_needs_weight_and_a_lift(density, mode):
     m = model(1.0, density=density)
     state, reports = run(m, [Command(dz=-4e-4)])
     with pytest.raises(ValueError, match="weight"):
-        release_to_rest(m, state, Release(mode, 2), step, reports[-1])
+        release_to_rest(m, state, Release(mode, 2), reports[-1])
 
 
 def test_a_third_contact_body_is_data():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fe_contact import (GRAVITY, Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh,
-                        initial_state, run, run_release, step)
+                        initial_state, run, run_release)
 from fe_contact.fem.elasticity import internal_force
 from fe_contact.stepping.measure import plate_wrench
 
@@ -52,7 +52,7 @@ def test_body_force_is_the_weight():
 
 def test_weight_alone_rests_on_the_contact():
     m = model(DENSITY)
-    state, reports = run_release(m, initial_state(m), Release("open", 1), step)
+    state, reports = run_release(m, initial_state(m), Release("open", 1))
     rest = reports[-1]
     assert rest.converged and rest.grip == 0.0
     assert rest.normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
@@ -75,7 +75,7 @@ def test_lift_leaves_the_block_stress_free_under_the_upper_face(gripper):
     k = m0.shear_stiffness
     m = model(gripper=Gripper(k, k * (SIZE[0] ** 2 + SIZE[1] ** 2) / 12) if gripper else None)
     state, last = loaded(m)
-    _, reports = run_release(m, state, Release("lift", 5), step, last)
+    _, reports = run_release(m, state, Release("lift", 5), last)
     rest = reports[-1]
     assert all(r.converged for r in reports)
     assert rest.strain_energy <= STRESS_FREE_RTOL * last.strain_energy
@@ -87,7 +87,7 @@ def test_lift_leaves_the_block_stress_free_under_the_upper_face(gripper):
 def test_open_release_rests_on_friction_and_weight():
     m = model(DENSITY)
     state, last = loaded(m)
-    _, reports = run_release(m, state, Release("open", 5), step, last)
+    _, reports = run_release(m, state, Release("open", 5), last)
     rest = reports[-1]
     assert all(r.converged for r in reports)
     assert rest.regularisation_force <= 1e-10 * m.weight
@@ -106,7 +106,7 @@ def test_open_release_converges_as_it_is_refined():
         m = model(DENSITY, beta=beta, quadrature=2)
         state, last = loaded(m)
         for n in (8, 16, 32) if beta == 0.1 else (16,):
-            _, reports = run_release(m, state, Release("open", n), step, last)
+            _, reports = run_release(m, state, Release("open", n), last)
             assert reports[-1].converged
             rest[beta, n] = reports[-1].lower_centroid[:2]
     lag = np.linalg.norm(last.lag)
@@ -156,4 +156,4 @@ def test_bad_input_names_the_value(make, match):
 def test_open_release_needs_weight():
     m = model()
     with pytest.raises(ValueError, match="density"):
-        run_release(m, initial_state(m), Release("open", 2), step)
+        run_release(m, initial_state(m), Release("open", 2))

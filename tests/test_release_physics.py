@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fe_contact import (Command, Friction, Material, Model, Release, SolverOptions, block_mesh, initial_state,
-                        release_to_rest, run, step)
+                        release_to_rest, run)
 import fe_contact.stepping.newton as newton_module
 
 TALL = dict(size=(0.01, 0.01, 0.02), divisions=(5, 5, 10))
@@ -77,7 +77,7 @@ def test_bonded_lift_with_weight_puts_the_block_down_unloaded():
     lower face is under the upper face."""
     m = rubber()
     state, loaded = pushed(m)
-    _, reports, rest = release_to_rest(m, state, Release("lift", 5), step, loaded)
+    _, reports, rest = release_to_rest(m, state, Release("lift", 5), loaded)
     last = reports[-1]
     assert rest.settled, rest.reason
     assert last.normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
@@ -93,7 +93,7 @@ def test_a_release_cut_short_is_not_settled():
     hanging half on the plate: a release stopped there by max_steps says so."""
     m = rubber()
     state, loaded = pushed(m)
-    _, reports, rest = release_to_rest(m, state, Release("lift", 5, max_steps=5), step, loaded)
+    _, reports, rest = release_to_rest(m, state, Release("lift", 5, max_steps=5), loaded)
     assert all(r.converged for r in reports) and len(reports) == 5
     assert not rest.settled
     assert "pad still carries" in rest.reason and "max_steps" in rest.reason
@@ -103,4 +103,4 @@ def test_a_release_cut_short_is_not_settled():
 def test_lift_needs_a_press():
     m = rubber()
     with pytest.raises(ValueError, match="press"):
-        release_to_rest(m, initial_state(m), Release("lift", 2), step)
+        release_to_rest(m, initial_state(m), Release("lift", 2))

@@ -118,9 +118,14 @@ def sources_matching(pattern: str, package="pushplan") -> list[str]:
 
 
 def test_one_fe_driving_loop():
-    # only the driver calls fe_contact's step (fe_contact.run is fe_contact's own)
-    assert sources_matching(r"from fe_contact(\.step)? import[^\n]*\bstep\b|fe_contact\.step\(") == [
-        "pushplan/run/driver.py"]
+    # one loop over steps, fe_contact's StepSequence (run and run_release iterate it); in
+    # pushplan only the driver steps fe_contact, through it
+    steps = r"\bStepSequence\b|fe_contact(\.stepping)?(\.step)? import[^\n]*\b(step|run|run_release)\b|" \
+            r"fe_contact\.(step|run|run_release)\("
+    assert sources_matching(steps) == ["pushplan/run/driver.py"]
+    loops = sources_matching(r"for [^\n]* in [^\n]*\b(_commands|next_command)\(|:= [^\n]*next_command\(",
+                             "fe_contact") + sources_matching(r"next_command\(")
+    assert loops == ["fe_contact/stepping/sequence.py"]
 
 
 def test_one_atomic_writer():
@@ -138,3 +143,11 @@ def test_public_names_are_the_exports():
 
     assert sorted(pushplan.__all__) == sorted(pushplan._EXPORTS)
     assert all(hasattr(fe_contact, n) for n in fe_contact.__all__)
+
+
+def test_one_orthotropy_frame():
+    # fe_contact.local_frame is the one implementation; the FE model, the reduced model,
+    # the identification and the recordings use it
+    defs = sources_matching(r"def (local_frame|rotation_matrix)\(", "fe_contact") + \
+        sources_matching(r"def (local_frame|rotation_matrix)\(")
+    assert defs == ["fe_contact/contact/friction.py"]

@@ -268,35 +268,6 @@ def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
     return np.concatenate([np.geomspace(1.0, floor, steps), [0.0]])
 
 
-def run_release(model: Model, state: State, release: Release, step, loaded: StepReport | None = None):
-    """Step ``model`` from ``state`` through ``release`` with ``step`` (``fe_contact.stepping.step``).
-
-    Returns the final state and the reports of the release steps.
-    """
-    state, reports, _ = release_to_rest(model, state, release, step, loaded, check=False)
-    return state, reports
-
-
-def release_to_rest(model: Model, state: State, release: Release, step, loaded: StepReport | None = None,
-                    check: bool = True):
-    """:func:`run_release`, then :func:`rest_check` of where it ended (None
-    without ``check``, or if the release took no step).
-
-    Returns
-    -------
-    state : State
-    reports : list of StepReport
-    rest : Rest or None
-    """
-    schedule = ReleaseSchedule(model, release, state, loaded)
-    reports: list[StepReport] = []
-    while (command := schedule.next_command(state, reports[-1] if reports else None)) is not None:
-        state, report = step(model, state, command, consume=True)
-        reports.append(report)
-    rest = rest_check(model, state, reports[-1], schedule, step) if check and reports else None
-    return state, reports, rest
-
-
 @dataclass(frozen=True)
 class Rest:
     """Whether a released block is at rest, and the measures that say so.

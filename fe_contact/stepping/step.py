@@ -24,7 +24,7 @@ import numpy as np
 
 from .gripper import compliant_step
 from .held import held_step, next_state
-from .model import Command, Model, State, StepReport, initial_state
+from .model import Command, Model, State, StepReport
 from .predictor import commanded_pose
 from .release import open_step
 
@@ -133,23 +133,3 @@ def _check_arguments(model, state, command) -> None:
             raise ValueError(f"state.{name} must be finite")
     if not np.isfinite(state.upper_rotation):
         raise ValueError(f"state.upper_rotation must be finite, got {state.upper_rotation}")
-
-
-def run(model: Model, commands, state: State | None = None, stop_on_failure: bool = True):
-    """Apply a sequence of commands.
-
-    Returns
-    -------
-    state : State
-        Final state (the last good one if a step failed and ``stop_on_failure``).
-    reports : list[StepReport]
-    """
-    state = initial_state(model) if state is None else state
-    reports = []
-    for i, cmd in enumerate(commands):
-        # the states in between are run's own: their tangents may go at a refresh
-        state, rep = step(model, state, cmd, consume=i > 0)
-        reports.append(rep)
-        if not rep.converged and stop_on_failure:
-            break
-    return state, reports

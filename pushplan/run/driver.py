@@ -1,4 +1,5 @@
-"""The one loop that drives ``fe_contact`` through a sequence of commands.
+"""The one driver of ``fe_contact`` through a sequence of commands, on fe_contact's
+one stepping loop (:class:`fe_contact.StepSequence`).
 
 Every caller (``simulate``, the planner's rollouts, the MuJoCo bridge, the studies)
 runs its steps through :func:`drive`; what it does with each step is an *observer*:
@@ -25,7 +26,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from fe_contact import Command, Model, Release, ReleaseSchedule, State, StepReport, initial_state, rest_check, step
+from fe_contact import Command, Model, Release, State, StepReport, StepSequence, rest_check, step
 
 from ..config.scenario import pad_friction_dict
 from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
@@ -109,28 +110,21 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
     for i, c in enumerate(commands):
         if not isinstance(c, Command):
             raise TypeError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
-    owns_start = state is None  # then every state is ours, and a refresh may free the previous tangent
-    start = initial_state(model) if state is None else state
-    run = Run(model=model, state=start, summary=RunSummary(scenario=scenario or {}),
-              states=[start] if keep_states else [])
-    hook = _hook(observers)
+    sequence = StepSequence(model, commands, state, release=release, local_problem_hook=_hook(observers))
+    run = Run(model=model, state=sequence.state, summary=RunSummary(scenario=scenario or {}),
+              states=[sequence.state] if keep_states else [])
     t0 = time.perf_counter()
-    schedule: list[ReleaseSchedule] = []  # the release's, once it begins
     try:
-        for i, command in enumerate(_commands(model, commands, release, run, schedule)):
-            new_state, report = step(model, run.state, command, local_problem_hook=hook,
-                                     consume=owns_start or i > 0)
+        for i, (new_state, report) in enumerate(sequence):
             run.reports.append(report)
             _record(run, new_state, report, keep_states, "command" if i < len(commands) else "release")
             run.summary.elapsed_s = time.perf_counter() - t0
             for o in observers:
                 o.step(run, report)
-            if not report.converged:
-                break
-        else:
+        if run.summary.status != RunStatus.FAILED:
             run.summary.status = RunStatus.COMPLETED
             if release is not None and run.reports:
-                rest = rest_check(model, run.state, run.reports[-1], schedule[0], step)
+                rest = rest_check(model, run.state, run.reports[-1], sequence.schedule, step)
                 run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
                                                            pad_friction_dict(model.pad))
         run.summary.elapsed_s = time.perf_counter() - t0
@@ -138,18 +132,6 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
     finally:
         _call(observers, "close", run)
     return run
-
-
-def _commands(model: Model, commands: tuple, release: Release | None, run: Run, kept: list):
-    """The commands, then the release's, each chosen after the last step (its
-    schedule appended to ``kept``)."""
-    yield from commands
-    if release is None:
-        return
-    schedule = ReleaseSchedule(model, release, run.state, run.reports[-1] if run.reports else None)
-    kept.append(schedule)
-    while (command := schedule.next_command(run.state, run.reports[-1] if run.reports else None)) is not None:
-        yield command
 
 
 def _record(run: Run, new_state: State, report: StepReport, keep_states: bool, phase: str) -> None:

@@ -1,0 +1,123 @@
+"""The one stepping loop: a sequence of commands, then optionally a release whose
+commands are chosen one at a time after the last report.
+
+:class:`StepSequence` is iterated by :func:`run`, :func:`run_release`, :func:`release_to_rest` and every
+caller that wants to see each step as it happens (``pushplan``'s driver feeds its
+observers from it).  A step that does not converge ends the sequence (its report
+is the last one; the state stays the last good one), unless ``stop_on_failure`` is
+False.
+"""
+
+from __future__ import annotations
+
+from .model import Model, State, StepReport, initial_state
+from .release import Release, ReleaseSchedule, rest_check
+from .step import step
+
+
+class StepSequence:
+    """Iterate ``(state, report)`` over the steps of ``commands`` and then of ``release``.
+
+    Parameters
+    ----------
+    model : Model
+    commands : sequence of Command
+    state : State, optional
+        Start state (default: the undeformed block); not modified.
+    release : Release, optional
+        Let go of the block after the commands (:class:`ReleaseSchedule`).
+    loaded : StepReport, optional
+        The loaded step's report, for a release that starts from ``state``
+        without commands before it (default: the last command's report).
+    local_problem_hook : callable, optional
+        Passed to every :func:`~fe_contact.stepping.step.step`.
+    consume_start : bool, optional
+        Whether the first step may release ``state``'s cached tangent (see
+        :func:`~fe_contact.stepping.step.step`); default: only if the sequence
+        made the start state itself.  Later states are the sequence's own.
+    stop_on_failure : bool
+        End after a step that did not converge.
+
+    Attributes
+    ----------
+    state : State
+        The state after the last step (the last good one: a failed step keeps its start).
+    reports : list of StepReport
+        Every step's report so far.
+    schedule : ReleaseSchedule or None
+        The release's, once it has begun.
+    """
+
+    def __init__(self, model: Model, commands=(), state: State | None = None, *, release: Release | None = None,
+                 loaded: StepReport | None = None, local_problem_hook=None, consume_start: bool | None = None,
+                 stop_on_failure: bool = True):
+        self.model, self.commands, self.release, self.loaded = model, tuple(commands), release, loaded
+        self.hook, self.stop_on_failure = local_problem_hook, stop_on_failure
+        self.consume_start = state is None if consume_start is None else consume_start
+        self.state = initial_state(model) if state is None else state
+        self.reports: list[StepReport] = []
+        self.schedule: ReleaseSchedule | None = None
+
+    def __iter__(self):
+        for i, command in enumerate(self._commands()):
+            self.state, report = step(self.model, self.state, command, self.hook,
+                                      consume=self.consume_start or i > 0)
+            self.reports.append(report)
+            yield self.state, report
+            if not report.converged and self.stop_on_failure:
+                return
+
+    def _commands(self):
+        """The commands, then the release's, each chosen after the last report."""
+        yield from self.commands
+        if self.release is None:
+            return
+        loaded = self.reports[-1] if self.reports else self.loaded
+        self.schedule = ReleaseSchedule(self.model, self.release, self.state, loaded)
+        while (command := self.schedule.next_command(self.state, self.reports[-1] if self.reports else None)) \
+                is not None:
+            yield command
+
+
+def run(model: Model, commands, state: State | None = None, stop_on_failure: bool = True):
+    """Apply a sequence of commands (:class:`StepSequence`).
+
+    Returns
+    -------
+    state : State
+        Final state (the last good one if a step failed).
+    reports : list[StepReport]
+    """
+    sequence = StepSequence(model, commands, state, consume_start=False, stop_on_failure=stop_on_failure)
+    for _ in sequence:
+        pass
+    return sequence.state, sequence.reports
+
+
+def run_release(model: Model, state: State, release: Release, loaded: StepReport | None = None):
+    """Step ``model`` from ``state`` through ``release`` (:class:`StepSequence`);
+    ``loaded`` is the report of the loaded step before it.
+
+    Returns the final state and the reports of the release steps.
+    """
+    state, reports, _ = release_to_rest(model, state, release, loaded, check=False)
+    return state, reports
+
+
+def release_to_rest(model: Model, state: State, release: Release, loaded: StepReport | None = None,
+                    check: bool = True):
+    """:func:`run_release`, then :func:`~fe_contact.stepping.release.rest_check` of
+    where it ended (None without ``check``, or if the release took no step).
+
+    Returns
+    -------
+    state : State
+    reports : list of StepReport
+    rest : Rest or None
+    """
+    sequence = StepSequence(model, (), state, release=release, loaded=loaded, consume_start=True)
+    for _ in sequence:
+        pass
+    reports = sequence.reports
+    rest = rest_check(model, sequence.state, reports[-1], sequence.schedule, step) if check and reports else None
+    return sequence.state, reports, rest
