@@ -211,14 +211,14 @@ def test_solver_failure_exits_3_with_a_valid_summary(name, tmp_path, capsys):
 def test_a_bug_inside_a_run_is_not_reported_as_bad_input_or_solver_failure(tmp_path, monkeypatch):
     """A ValueError raised by a broken internal function is a bug: it propagates with
     its traceback (exit 1 from the console script), never exit 2 or 3."""
-    module = importlib.import_module("pushplan.run.driver")
+    module = importlib.import_module("fe_contact.stepping.sequence")  # the one stepping loop
     real_step, calls = module.step, []
 
-    def broken_step(model, state, command, **options):
+    def broken_step(model, state, command, *args, **options):
         calls.append(command)
         if len(calls) == 2:
             raise ValueError("an internal bug")
-        return real_step(model, state, command, **options)
+        return real_step(model, state, command, *args, **options)
 
     monkeypatch.setattr(module, "step", broken_step)
     (tmp_path / "s.toml").write_text(BASE)
@@ -228,7 +228,7 @@ def test_a_bug_inside_a_run_is_not_reported_as_bad_input_or_solver_failure(tmp_p
 
 def test_a_bug_exits_1_with_its_traceback_in_a_real_process(tmp_path):
     (tmp_path / "s.toml").write_text(BASE)
-    code = ("import sys, pushplan.run.driver as d\n"
+    code = ("import sys, fe_contact.stepping.sequence as d\n"
             "def broken(*a, **k): raise ValueError('an internal bug')\n"
             "d.step = broken\n"
             "from pushplan.cli import main\n"
