@@ -502,6 +502,7 @@ def test_scaling_diagonal_maps_the_isotropic_cone_onto_k_mu():
     (lambda: in_polar_cone(np.ones((2, 4)), 0.1, 0.1), "v must have shape"),
     (lambda: modified_velocity([[0.0, np.nan, 0.0]], 0.1, 0.1), "u contains non-finite"),
     (lambda: local_frame(np.nan), "angle must be finite"),
+    (lambda: scaling_diagonal([0.1, -0.2], 0.1), "mu_x must be finite and >= 0, got -0.2"),
     (lambda: to_local(np.ones((2, 2)), 0.0), "v_world must have shape"),
     (lambda: to_global(np.ones((2, 3)), np.inf), "angle must be finite"),
 ])

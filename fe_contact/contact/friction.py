@@ -300,7 +300,7 @@ def scaling_diagonal(mu_x, mu_y) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     mu_x, mu_y : ndarray, shape (n,)
-        Friction coefficients (>= 0).
+        Friction coefficients (>= 0); ``mu_y`` may be a scalar.
 
     Returns
     -------
@@ -309,7 +309,7 @@ def scaling_diagonal(mu_x, mu_y) -> tuple[np.ndarray, np.ndarray]:
     mu : ndarray, shape (n,)
         Coefficient of each isotropic cone.
     """
-    mx, my = np.asarray(mu_x, dtype=float), np.asarray(mu_y, dtype=float)
+    mx, my = _as_coefficients(mu_x, mu_y, np.shape(mu_x)[0] if np.ndim(mu_x) else 1)
     mu = np.maximum(mx, my)
     frictionless = mu == 0
     safe = np.where(frictionless, 1.0, mu)
