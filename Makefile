@@ -11,7 +11,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: demo test test-slow bench clean
+.PHONY: demo test test-slow lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,9 @@ demo: $(STAMP)
 # the two test workers already use both cores: no second thread in fe_contact's large dense kernels
 test: $(STAMP)
 	FE_CONTACT_DENSE_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
 
 test-slow: $(STAMP)
 	FE_CONTACT_DENSE_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadgroup -q -m slow

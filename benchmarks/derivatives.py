@@ -91,7 +91,7 @@ def rollout_cost(elements) -> dict:
         states.append(step(model, states[-1], c)[0])
     linearise, per_column, back_substitution = 0.0, 0.0, 0.0
     rng = np.random.default_rng(0)
-    for start, (end, report) in zip(states[:-1], [step(model, s, c) for s, c in zip(states[:-1], COMMANDS)]):
+    for start, (end, report) in zip(states[:-1], [step(model, s, c) for s, c in zip(states[:-1], COMMANDS, strict=True)], strict=True):
         make = lambda: HeldLinearisation(model, start.displacement, end.displacement,  # noqa: E731
                                          report.reaction_local, report.node_status)
         linearise += best(make)
@@ -131,7 +131,7 @@ def identification() -> dict:
     for label, exact in (("exact", True), ("forward_differences", False)):
         t0 = time.perf_counter()
         r = identify(guess, obs, noise, exact=exact, model_error=False)  # the fit alone
-        out[label] = {"estimate": dict(zip(r.names, r.estimate)), "sigma": dict(zip(r.names, r.sigma)),
+        out[label] = {"estimate": dict(zip(r.names, r.estimate, strict=True)), "sigma": dict(zip(r.names, r.sigma, strict=True)),
                       "fe_rollouts": r.fe_rollouts, "iterations": r.iterations, "converged": r.converged,
                       "wall_s": time.perf_counter() - t0}
     e, f = out["exact"], out["forward_differences"]

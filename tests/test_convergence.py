@@ -74,7 +74,7 @@ def test_cli_writes_the_study_and_rejects_bad_levels(tmp_path, capsys):
     assert main(["convergence", str(tmp_path / "s.toml"), "--levels", "3", "--out", str(tmp_path / "pool"),
                  "--workers", "2", "--quiet"]) == 0
     pooled = json.loads((tmp_path / "pool" / "convergence.json").read_text())
-    for a, b in zip(pooled["levels"], doc["levels"]):  # equal up to the BLAS threads' rounding
+    for a, b in zip(pooled["levels"], doc["levels"], strict=True):  # equal up to the BLAS threads' rounding
         np.testing.assert_allclose([a["values"][k] for k in QUANTITIES], [b["values"][k] for k in QUANTITIES],
                                    rtol=1e-12, atol=1e-15)
     assert len(list((tmp_path / "pool" / "levels" / "cases").iterdir())) == 3

@@ -85,7 +85,7 @@ def random_state(mesh, seed: int = 0, strain: float = 0.05, noise: float = 0.02)
     X = mesh.nodes
     A = strain * rng.standard_normal((3, 3))
     R = rotation([0.3, -1.0, 0.7], np.radians(40.0))
-    h = min(s / n for s, n in zip(mesh.size, mesh.divisions))
+    h = min(s / n for s, n in zip(mesh.size, mesh.divisions, strict=True))
     return (X @ (R @ (np.eye(3) + A)).T - X) + noise * h * rng.standard_normal(X.shape)
 
 
@@ -478,7 +478,7 @@ def test_patch_and_rigid_motion_on_distorted_mesh(quadrature):
     grad N_a dV (cofactor form) exactly, so both hold on skewed elements too."""
     base = block_mesh(SIZE, DIVS)
     rng = np.random.default_rng(11)
-    h = min(s / n for s, n in zip(SIZE, DIVS))
+    h = min(s / n for s, n in zip(SIZE, DIVS, strict=True))
     shear = np.array([[1.0, 0.3, 0.2], [0.0, 1.0, -0.25], [0.1, 0.0, 1.0]])
     nodes = base.nodes @ shear.T + 0.15 * h * rng.uniform(-1, 1, base.nodes.shape)
     mesh = type(base)(nodes, base.elements, base.size, base.divisions, base.lower, base.upper)

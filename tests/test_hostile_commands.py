@@ -7,7 +7,6 @@ models built without the memory budget, observation files, argparse usage errors
 
 import hashlib
 import json
-import shutil
 from pathlib import Path
 
 import pytest

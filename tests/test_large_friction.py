@@ -103,7 +103,7 @@ def test_gauss_seidel_uzawa_gives_the_newton_steps_on_the_paper_case():
         model = Model(mesh=block_mesh(SIZE, (8, 8, 2)), material=Material(210e9, 0.3),
                       friction=Friction(0.3, 0.05, 0.0), quadrature=2, options=SolverOptions(local_method=method))
         _, runs[method] = run(model, cmds)
-    for x, y in zip(runs["uzawa"], runs["newton"]):
+    for x, y in zip(runs["uzawa"], runs["newton"], strict=True):
         assert x.converged and y.converged, (x.message, y.message)
         np.testing.assert_allclose(x.displacement, y.displacement, rtol=0,
                                    atol=AGREE_RTOL * np.abs(y.displacement).max())

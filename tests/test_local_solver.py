@@ -247,7 +247,7 @@ def test_methods_agree_on_random_anisotropic_problems(random_solutions):
 def test_contact_law_and_associated_slip_rule(random_solutions):
     """Pointwise De Saxce law and, on sliding contacts, r_t = -r_n M^2 u_t / ||M u_t||."""
     n_slide = n_separated = n_oblique = 0
-    for (W, q, mx, my), sols in random_solutions:
+    for (_W, _q, mx, my), sols in random_solutions:
         for s in sols.values():
             r, u = s.r, s.u
             scale = np.abs(r).max()

@@ -261,7 +261,7 @@ def test_bonded_press_converges_to_the_reference_with_both_elements():
     ext_fbar, ext_hex8 = extrapolate(h, fbar), extrapolate(h, hex8)
     assert ext_fbar.monotone and ext_hex8.monotone
     assert abs(ext_fbar.value - BONDED_REFERENCE_N) <= ext_fbar.gci_abs
-    assert all(b > a > BONDED_REFERENCE_N for a, b in zip(fbar, hex8))
+    assert all(b > a > BONDED_REFERENCE_N for a, b in zip(fbar, hex8, strict=True))
     assert abs(ext_hex8.value / BONDED_REFERENCE_N - 1) < 0.06
 
 

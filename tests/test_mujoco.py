@@ -207,7 +207,7 @@ def test_comparison_rigid_weld_no_twist_fe_twist_flex_isotropic(tmp_path):
     for r in steps["rigid_weld"]:
         assert abs(r["twist_deg"]) < RIGID_TWIST_DEG and abs(r["deviation_deg"]) < RIGID_TWIST_DEG
     # yaw in the summary: the final and largest of the steps' lower-face yaw
-    for name, res in result["models"].items():
+    for _name, res in result["models"].items():
         yaws = [r["lower_yaw_deg"] for r in res["steps"]]
         assert res["summary"]["final_lower_yaw_deg"] == yaws[-1]
         assert res["summary"]["max_abs_lower_yaw_deg"] == max(abs(v) for v in yaws)

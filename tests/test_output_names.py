@@ -60,7 +60,7 @@ def test_a_block_that_sticks_has_null_direction_deviation_and_release_and_rest_a
         batch = chunk.to_record_batch()
         if chunk.entity_path == "/markers":
             markers += [(s, t) for s, t in zip(batch.column("step").to_pylist(),
-                                               batch.column("TextLog:text").to_pylist())]
+                                               batch.column("TextLog:text").to_pylist(), strict=True)]
         if chunk.entity_path == "/run/phase":
             phases += batch.column("step").to_pylist()
     kinds = {t[0].split(":")[0]: s for s, t in markers}

@@ -103,7 +103,7 @@ def test_claims_are_printed_as_findings_not_errors(run):
     docs/paper-reproduction.md), printed as such: no capitals, no 'NOT'."""
     lines = [line for line in run.stdout.splitlines() if line.startswith("claim ")]
     assert len(lines) == len(run.report["claims"])
-    for line, (key, claim) in zip(lines, run.report["claims"].items()):
+    for line, (key, claim) in zip(lines, run.report["claims"].items(), strict=True):
         expected = "reproduced" if claim["holds"] else "partly reproduced; finding"
         assert line.startswith(f"claim {key}: {expected}"), line
     assert "NOT" not in run.stdout

@@ -83,7 +83,7 @@ def column(path, entity, name):
     rows = []
     for b in chunks(path, entity):
         if "step" in b.schema.names and name in b.schema.names:
-            rows += zip(b.column("step").to_pylist(), b.column(name).to_pylist())
+            rows += zip(b.column("step").to_pylist(), b.column(name).to_pylist(), strict=True)
     rows.sort(key=lambda r: r[0])
     return [r[0] for r in rows], [r[1] for r in rows]
 
@@ -108,7 +108,7 @@ def test_direction_deviation_and_forces_equal_summary(files):
     at, twist = column(rrd, "/plots/lower_direction_deviation_deg", "Scalars:scalars")
     defined = [(s["step"], s["lower_direction_deviation_deg"]) for s in steps
                if s["lower_direction_deviation_deg"] is not None]
-    assert list(zip(at, [t[0] for t in twist])) == defined
+    assert list(zip(at, [t[0] for t in twist], strict=True)) == defined
     assert steps[0]["lower_direction_deviation_deg"] is None and steps[0]["twist_deg"] is None  # the press
     assert all(s["twist_deg"] == s["lower_direction_deviation_deg"] for s in steps)  # the alias
     _, normal = column(rrd, "/plots/normal_force", "Scalars:scalars")
@@ -245,7 +245,7 @@ def test_log_plan(files, tmp_path):
     (t,) = chunks(path, "/plan/target")
     np.testing.assert_allclose(t.column("Boxes3D:half_sizes").to_pylist()[0][0], [0.01, 0.01, 0.0])
     rows = [(i, v) for b in chunks(path, "/plots/planner_cost")
-            for i, v in zip(b.column("planner_iteration").to_pylist(), b.column("Scalars:scalars").to_pylist())]
+            for i, v in zip(b.column("planner_iteration").to_pylist(), b.column("Scalars:scalars").to_pylist(), strict=True)]
     assert sorted(rows) == [(i, [c]) for i, c in enumerate(cost)]
     assert {"/plan/verified", "/plan/naive"} <= {c.entity_path for c in RrdReader(path).stream().to_chunks()}
 

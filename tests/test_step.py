@@ -149,7 +149,7 @@ def test_axes_rotated_90_with_swapped_coefficients_is_identical():
     b = make_model(0.05, 0.3, angle_deg=90.0, divisions=(4, 4, 2))
     _, ra = run(a, paper_commands(n_push=2))
     _, rb = run(b, paper_commands(n_push=2))
-    for x, y in zip(ra, rb):
+    for x, y in zip(ra, rb, strict=True):
         scale = np.abs(x.displacement).max()
         np.testing.assert_allclose(y.displacement, x.displacement, atol=SOLVER_ATOL_REL * scale)
         np.testing.assert_allclose(y.reaction_world, x.reaction_world, atol=SOLVER_ATOL_REL * np.abs(x.reaction_world).max())
@@ -163,7 +163,7 @@ def test_rotating_whole_problem_by_90_rotates_result():
     _, ra = run(a, paper_commands(direction_deg=20.0, n_push=2))
     _, rb = run(b, paper_commands(direction_deg=110.0, n_push=2))
     R = np.array([[0.0, -1.0], [1.0, 0.0]])
-    for x, y in zip(ra, rb):
+    for x, y in zip(ra, rb, strict=True):
         scale = np.abs(x.displacement).max()
         np.testing.assert_allclose(y.lower_centroid[:2], R @ x.lower_centroid[:2], atol=SOLVER_ATOL_REL * scale)
         np.testing.assert_allclose(y.tangential_force, R @ x.tangential_force,
@@ -242,7 +242,7 @@ def test_reused_tangent_gives_the_same_steps():
     _, ra = run(full, cmds)
     _, rb = run(fast, cmds)
     check_every_step(rb)
-    for x, y in zip(ra, rb):
+    for x, y in zip(ra, rb, strict=True):
         np.testing.assert_allclose(y.displacement, x.displacement, atol=SOLVER_ATOL_REL * np.abs(x.displacement).max())
         np.testing.assert_allclose(y.reaction_world, x.reaction_world, atol=SOLVER_ATOL_REL * np.abs(x.reaction_world).max())
     # the point of the fast path: fewer flexibility matrices than Newton iterations
@@ -280,7 +280,7 @@ def test_multifrontal_flexibility_equals_sparse_solves(monkeypatch):
     np.testing.assert_allclose(W_multifrontal, W_sparse, rtol=0, atol=1e-10 * np.abs(W_sparse).max())
     _, sparse_reports = run(model, cmds[:2])
     check_every_step(sparse_reports)
-    for x, y in zip(multifrontal_reports, sparse_reports):
+    for x, y in zip(multifrontal_reports, sparse_reports, strict=True):
         np.testing.assert_allclose(y.displacement, x.displacement, atol=SOLVER_ATOL_REL * np.abs(x.displacement).max())
         np.testing.assert_allclose(y.reaction_world, x.reaction_world,
                                    atol=SOLVER_ATOL_REL * np.abs(x.reaction_world).max())
@@ -293,7 +293,7 @@ def test_paper_uzawa_and_newton_local_solvers_give_the_same_steps():
     _, ra = run(make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(local_method="uzawa")), cmds)
     _, rb = run(make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(local_method="newton")), cmds)
     check_every_step(ra)
-    for x, y in zip(ra, rb):
+    for x, y in zip(ra, rb, strict=True):
         np.testing.assert_allclose(x.displacement, y.displacement, atol=SOLVER_ATOL_REL * np.abs(y.displacement).max())
         np.testing.assert_allclose(x.reaction_world, y.reaction_world, atol=SOLVER_ATOL_REL * np.abs(y.reaction_world).max())
 
@@ -416,7 +416,7 @@ def test_indefinite_tangent_at_an_iterate_falls_back_to_the_start_state(monkeypa
 
     monkeypatch.setattr(tangent_module, "LUFactor", no_superlu)
     results = [step(model, initial_state(model), Command(dz=dz)) for model in models]
-    for state, rep in results:
+    for _state, rep in results:
         assert rep.converged, rep.message
         assert rep.equilibrium_error < 1e-8
     (a, rep_a), (b, rep_b) = results
@@ -511,7 +511,7 @@ def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypa
         model = make_model(0.3, 0.05, divisions=(4, 4, 2), options=SolverOptions(reuse_tangent=reuse))
         pressed, _ = step(model, initial_state(model), Command(dz=-0.1e-3))
         results[reuse] = (model, pressed, *step(model, pressed, turn))
-    for model, pressed, state, rep in results.values():
+    for _model, _pressed, _state, rep in results.values():
         assert rep.converged, rep.message
         assert rep.equilibrium_error < EQUILIBRIUM_TOL
         assert 29.0 < math.degrees(rep.lower_yaw) < 30.0  # lags the upper face a little

@@ -105,7 +105,7 @@ def test_dask_cluster_gives_the_same_table(pool_run):
     assert rc == EXIT_SOLVER_FAILURE
     pool_rows, dask_rows = read_rows(out / "results.csv"), read_rows(out_dask / "results.csv")
     assert [list(r) for r in dask_rows] == [list(r) for r in pool_rows]
-    for a, b in zip(pool_rows, dask_rows):
+    for a, b in zip(pool_rows, dask_rows, strict=True):
         for key in a.keys() - WALL_TIME_COLUMNS:
             try:
                 x, y = float(a[key]), float(b[key])

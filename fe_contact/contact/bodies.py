@@ -171,7 +171,7 @@ def stack_bodies(bodies) -> ContactSet:
     sizes = [b.nodes.size for b in bodies]
     frames = np.concatenate([np.broadcast_to(b.frame, (b.nodes.size, 3, 3)) for b in bodies])
     uniform = len(bodies) == 1
-    mu_x = np.concatenate([np.full(s, b.mu_x) for s, b in zip(sizes, bodies)])
-    mu_y = np.concatenate([np.full(s, b.mu_y) for s, b in zip(sizes, bodies)])
+    mu_x = np.concatenate([np.full(s, b.mu_x) for s, b in zip(sizes, bodies, strict=True)])
+    mu_y = np.concatenate([np.full(s, b.mu_y) for s, b in zip(sizes, bodies, strict=True)])
     body = np.repeat(np.arange(len(bodies)), sizes)
     return ContactSet(nodes, np.ascontiguousarray(frames), uniform, mu_x, mu_y, body, bodies)

@@ -147,7 +147,7 @@ def _check_size(size) -> tuple[float, float, float]:
     if len(values) != 3:
         raise ValueError(f"size must have 3 entries (lx, ly, lz), got {len(values)}")
     out = []
-    for name, v in zip(("lx", "ly", "lz"), values):
+    for name, v in zip(("lx", "ly", "lz"), values, strict=True):
         if isinstance(v, bool) or not isinstance(v, Real):
             raise ValueError(f"size {name} must be a real number, got {v!r}")
         v = float(v)
@@ -162,7 +162,7 @@ def _check_divisions(divisions) -> tuple[int, int, int]:
     if len(values) != 3:
         raise ValueError(f"divisions must have 3 entries (nx, ny, nz), got {len(values)}")
     out = []
-    for name, v in zip(("nx", "ny", "nz"), values):
+    for name, v in zip(("nx", "ny", "nz"), values, strict=True):
         if isinstance(v, bool) or not isinstance(v, Integral):
             raise ValueError(f"divisions {name} must be an integer, got {v!r}")
         if v < 1:
@@ -360,7 +360,7 @@ def nested_dissection_parts(mesh: BlockMesh, leaf: int = 64) -> list[np.ndarray]
         return grid[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1].ravel()
 
     def order(lo, hi):  # recursion over boxes (about 2 n_nodes / leaf calls), not nodes
-        extent = [h - l + 1 for l, h in zip(lo, hi)]
+        extent = [h - l + 1 for l, h in zip(lo, hi, strict=True)]
         if min(extent) <= 0:
             return
         if int(np.prod(extent)) <= leaf or max(extent) < 3:

@@ -4,6 +4,7 @@ with Richardson extrapolation and the grid convergence index."""
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 import sys
 
 from ..errors import EXIT_SOLVER_FAILURE, InputError
@@ -20,7 +21,7 @@ def _check(args, scenario) -> None:
     if not (math.isfinite(args.ratio) and args.ratio > 1.0):
         raise InputError(f"--ratio must be > 1, got {args.ratio}")
     meshes = [level_elements(scenario.elements, args.ratio, k) for k in range(args.levels)]
-    for coarse, fine in zip(meshes, meshes[1:]):
+    for coarse, fine in pairwise(meshes):
         if math.prod(fine) <= math.prod(coarse):
             raise InputError(f"--levels {args.levels} --ratio {args.ratio}: the meshes {list(coarse)} and "
                              f"{list(fine)} are not refinements of each other (a larger --ratio or coarsest mesh)")

@@ -159,7 +159,7 @@ def observations_from_table(names, rows, where: str) -> Observations:
     for i, row in enumerate(rows):
         if len(row) != len(names):
             raise InputError(f"{where}: row {i + 1} has {len(row)} values, the header {len(names)}")
-        for j, (k, text) in enumerate(zip(names, row)):
+        for j, (k, text) in enumerate(zip(names, row, strict=True)):
             data[i, j] = _number(f"{where}: row {i + 1} column {k}", text)
     col = {k: data[:, j] for j, k in enumerate(names)}
     turns = np.flatnonzero(np.abs(col["dtheta_deg"]) >= MAX_TURN_DEG)
@@ -167,7 +167,7 @@ def observations_from_table(names, rows, where: str) -> Observations:
         raise InputError(f"{where}: row {turns[0] + 1} column dtheta_deg must be in (-{MAX_TURN_DEG:g}, "
                          f"{MAX_TURN_DEG:g}) deg (one step's turn), got {col['dtheta_deg'][turns[0]]!r}")
     commands = tuple(Command(float(a), float(b), float(c), math.radians(float(d)))
-                     for a, b, c, d in zip(*(col[k] for k in COMMAND_KEYS)))
+                     for a, b, c, d in zip(*(col[k] for k in COMMAND_KEYS), strict=True))
     return Observations(commands, {k: col[k] for k in OBSERVED_COLUMNS if k in col})
 
 

@@ -261,7 +261,7 @@ def expand_cases(name: str, run: str, base_data: dict, overrides: dict, grid: di
     width = max(3, len(str(math.prod(len(v) for v in grid.values()) - 1)))
     cases = []
     for index, values in enumerate(itertools.product(*grid.values())):
-        params = dict(zip(grid, values))
+        params = dict(zip(grid, values, strict=True))
         case_id = short_case_id(f"{index:0{width}d}_" + "_".join(_slug(k, v) for k, v in params.items()))
         scenario = copy.deepcopy(base_data)
         label = ", ".join(f"{k}={v!r}" for k, v in params.items())
@@ -331,7 +331,7 @@ def _check_heatmap_cells(heatmap: Heatmap, cases: tuple[Case, ...]) -> None:
     cells = {}
     for c in cases:
         values = [c.params.get(a, c.columns.get(a)) for a in (heatmap.x, heatmap.y)]
-        for a, v in zip((heatmap.x, heatmap.y), values):
+        for a, v in zip((heatmap.x, heatmap.y), values, strict=True):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise InputError(f"heatmap axis {a} must be a finite number in every case, got {v!r}")
         cell = tuple(json.dumps(v) for v in values)

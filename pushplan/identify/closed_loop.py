@@ -128,7 +128,7 @@ def _error(pose, spec: PlanSpec) -> dict:
 
 def _identified(result) -> dict:
     return {k: {"estimate": float(v), "sigma": float(s) if math.isfinite(s) else None, "identifiable": f}
-            for k, v, s, f in zip(result.names, result.estimate, result.sigma, result.identifiable)} | {
+            for k, v, s, f in zip(result.names, result.estimate, result.sigma, result.identifiable, strict=True)} | {
         "fe_rollouts": result.fe_rollouts}
 
 
@@ -169,7 +169,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
             identified = _identified(est)
             model_sc = est.scenario(model_sc)
             if log:
-                log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate)))
+                log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate, strict=True)))
         # the loop never reads the naive rollout: no baseline
         result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False)
     command = planar_commands(result.commands[:1])[0]

@@ -139,8 +139,8 @@ class Suggestion:
     def to_dict(self) -> dict:
         return {"directions_deg": list(self.directions_deg), "distance": self.distance,
                 "commands": commands_to_list(self.commands),
-                "predicted_sigma": {k: (float(s) if math.isfinite(s) else None) for k, s in zip(self.names, self.sigma)},
-                "predicted_identifiable": dict(zip(self.names, self.identifiable)), "fe_rollouts": self.fe_rollouts}
+                "predicted_sigma": {k: (float(s) if math.isfinite(s) else None) for k, s in zip(self.names, self.sigma, strict=True)},
+                "predicted_identifiable": dict(zip(self.names, self.identifiable, strict=True)), "fe_rollouts": self.fe_rollouts}
 
 
 def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fit=("mu_x", "mu_y", "angle_deg"),

@@ -101,7 +101,7 @@ def identified_scenario(result: Identification, scenario: Scenario) -> dict:
     sc = result.scenario(scenario)
     d = sc.to_dict()
     d["description"] = (f"{scenario.description} [identified: "
-                        + ", ".join(f"{k} = {v:.6g}" for k, v in zip(result.names, result.estimate)) + "]").strip()
+                        + ", ".join(f"{k} = {v:.6g}" for k, v in zip(result.names, result.estimate, strict=True)) + "]").strip()
     return d
 
 

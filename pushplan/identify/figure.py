@@ -48,7 +48,7 @@ def ellipse_figure(cases, truth: dict, path) -> None:
     rng = np.random.default_rng(0)
     phi = np.linspace(0.0, 2 * math.pi, 361)
     fig, axes = plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 4.4), squeeze=False, sharex=True, sharey=True)
-    for ax, (title, doc) in zip(axes[0], cases):
+    for ax, (title, doc) in zip(axes[0], cases, strict=True):
         draws = _samples(doc, rng)
         r = radius(draws[:, :1], draws[:, 1:2], draws[:, 2:3], phi[None, :])
         lo, hi = np.percentile(r, [2.5, 97.5], axis=0)

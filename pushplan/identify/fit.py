@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.observations import Observations
 from ..config.scenario import Scenario
 from ..errors import InputError
 from .forward import PARAMETERS, FePredictor, IdentificationError, as_files, stacked, with_parameters
@@ -103,7 +102,7 @@ class Identification:
 def scales(names, theta) -> np.ndarray:
     """Parameter scales of the LM step and the identifiability tests."""
     table = {"mu_x": 0.1, "mu_y": 0.1, "angle_deg": 1.0}
-    return np.array([table.get(k, abs(t)) for k, t in zip(names, theta)])
+    return np.array([table.get(k, abs(t)) for k, t in zip(names, theta, strict=True)])
 
 
 def _residual(predict, y, sigma, theta) -> np.ndarray:
@@ -150,7 +149,7 @@ def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None)
     Returns ``(theta, r, J, iterations, converged)`` with the full Jacobian at the end."""
     r = _residual(predict, y, sigma, theta)
     lam, converged, it = 1e-3, False, 0
-    sub = tuple(k for k, f in zip(names, free) if f)
+    sub = tuple(k for k, f in zip(names, free, strict=True) if f)
 
     def full(t_free):
         t = theta_fixed.copy()
@@ -174,7 +173,7 @@ def levenberg_marquardt(predict, y, sigma, names, theta, free, log=None, J=None)
         small = np.max(np.abs((trial - theta)[free] / D)) < STEP_TOL or _negligible(Jf, D, (trial - theta)[free])
         theta, r, lam = trial, r_trial, max(lam / 3.0, 1e-7)
         if log is not None:
-            log(f"  LM iteration {it}: chi2 {r @ r:.6g}, " + ", ".join(f"{k} = {v:.6g}" for k, v in zip(names, theta)))
+            log(f"  LM iteration {it}: chi2 {r @ r:.6g}, " + ", ".join(f"{k} = {v:.6g}" for k, v in zip(names, theta, strict=True)))
         if small:
             converged = True
             break
@@ -254,7 +253,7 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
     if {"mu_x", "mu_y", "angle_deg"} <= set(names):
         guess = prefit(obs, [getattr(scenario, k) for k in ("mu_x", "mu_y", "angle_deg")], noise.pose_noise)
         if guess is not None:
-            for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess):
+            for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess, strict=True):
                 start[names.index(k)] = v
             used = True
     r_initial = _residual(predict, y, sigma, initial)
@@ -271,10 +270,10 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
         J0 = None
         if log is not None:
             log("  not identifiable at the start, kept at the scenario's value: "
-                + ", ".join(k for k, f in zip(names, free) if not f))
+                + ", ".join(k for k, f in zip(names, free, strict=True) if not f))
     theta, r, J, iterations, converged = levenberg_marquardt(predict, y, sigma, names, start, free, log, J0)
     flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
-    if not free.all() and any(f and not fr for f, fr in zip(flags, free)):
+    if not free.all() and any(f and not fr for f, fr in zip(flags, free, strict=True)):
         free[:] = True
         theta, r, J, more, converged = levenberg_marquardt(predict, y, sigma, names, theta, free, log, J)
         iterations += more

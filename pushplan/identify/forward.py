@@ -36,7 +36,7 @@ class IdentificationError(SolverFailure):
 
 def with_parameters(scenario: Scenario, names, theta) -> Scenario:
     """``scenario`` with its fields ``names`` set to the values ``theta``."""
-    return dataclasses.replace(scenario, **{k: float(v) for k, v in zip(names, theta)})
+    return dataclasses.replace(scenario, **{k: float(v) for k, v in zip(names, theta, strict=True)})
 
 
 def as_files(obs) -> tuple[Observations, ...]:
@@ -98,7 +98,7 @@ class FePredictor:
             self.wall_time += time.perf_counter() - t0
             if not run.completed:
                 f = run.summary.failure
-                values = ", ".join(f"{k} = {v:.6g}" for k, v in zip(self.names, theta))
+                values = ", ".join(f"{k} = {v:.6g}" for k, v in zip(self.names, theta, strict=True))
                 raise IdentificationError(f"FE rollout of the observed commands failed at step {f.step} "
                                           f"({f.status}) for {values}: {f.message}")
             predicted = observed_values(run.summary.steps)
@@ -125,7 +125,7 @@ class FePredictor:
                 self.count += 1
                 self.wall_time += time.perf_counter() - t0
                 if not result.converged:
-                    text = ", ".join(f"{k} = {v:.6g}" for k, v in zip(self.names, theta))
+                    text = ", ".join(f"{k} = {v:.6g}" for k, v in zip(self.names, theta, strict=True))
                     raise IdentificationError(f"FE rollout of the observed commands failed "
                                               f"({result.status.value}) for {text}: {result.message}")
                 for i, f in (_FE_OUTPUT[k] for k in obs.columns):

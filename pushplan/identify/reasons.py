@@ -83,11 +83,11 @@ def anisotropy(names, theta, cov) -> tuple[float, float] | None:
 def identifiability(names, theta, sigma, obs, pose_noise: float, cov=None):
     """``(flags, reasons)``: a flag per parameter and, for each unidentifiable one, why
     (``cov`` the covariance, for the anisotropy test of the angle)."""
-    values = dict(zip(names, (float(t) for t in theta)))
+    values = dict(zip(names, (float(t) for t in theta), strict=True))
     directions = push_directions(obs, pose_noise)
     flags, reasons = [], {}
     aniso = anisotropy(tuple(names), theta, cov)
-    for k, v, s in zip(names, theta, sigma):
+    for k, v, s in zip(names, theta, sigma, strict=True):
         if k == "angle_deg" and aniso is not None and not abs(aniso[0]) > ANISOTROPY_SIGMAS * aniso[1]:
             flags.append(False)
             reasons[k] = (f"mu_x - mu_y = {aniso[0]:.3g} +- {aniso[1]:.2g} is within {ANISOTROPY_SIGMAS:g} sigma of 0: "

@@ -83,9 +83,9 @@ class Uncertainty:
         return {
             "covariance_rule": "C = s2 * C0' + d d^T (pushplan.identify.uncertainty)",
             "chi2_factor_s2": self.chi2_factor,
-            "discretisation_shift": {k: float(v) for k, v in zip(names, self.discretisation)},
+            "discretisation_shift": {k: float(v) for k, v in zip(names, self.discretisation, strict=True)},
             "discretisation_chi2": self.discretisation_chi2,
-            "profile_check": {k: [_finite(v) for v in r] for k, r in zip(names, self.profile_ratio)},
+            "profile_check": {k: [_finite(v) for v in r] for k, r in zip(names, self.profile_ratio, strict=True)},
             "warnings": list(self.warnings), "fe_rollouts": self.fe_rollouts,
         }
 

@@ -144,7 +144,7 @@ def run_cosimulation(scene: MjcfScene, commands: Sequence[Command], gripper: str
     t0 = time.perf_counter()
     fractions = np.arange(1, n_sub + 1) / n_sub
     for k in range(len(commands)):
-        for pos, quat in zip(*traj.between(k, fractions)):
+        for pos, quat in zip(*traj.between(k, fractions), strict=True):
             d.mocap_pos[mocap], d.mocap_quat[mocap] = pos, quat
             mj.mj_step(m, d)
         rep = coupler.couple()

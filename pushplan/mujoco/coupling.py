@@ -255,7 +255,7 @@ class CoSimulation:
 def _collides(m, g1: int, g2: int) -> bool:
     """Whether MuJoCo may generate a contact between geoms ``g1`` and ``g2``: an explicit
     ``<pair>``, or compatible ``contype``/``conaffinity`` bits on bodies not excluded."""
-    pairs = {tuple(sorted(p)) for p in zip(m.pair_geom1, m.pair_geom2)}
+    pairs = {tuple(sorted(p)) for p in zip(m.pair_geom1, m.pair_geom2, strict=True)}
     if tuple(sorted((g1, g2))) in pairs:
         return True
     if not (m.geom_contype[g1] & m.geom_conaffinity[g2] or m.geom_contype[g2] & m.geom_conaffinity[g1]):

@@ -54,7 +54,7 @@ def rigid_weld_run(scene: MjcfScene, traj: GripperTrajectory, n_move: int, n_set
     out, scale = [], max(scene.scenario.size)
     fractions = np.minimum(np.arange(1, n_move + n_settle + 1) / n_move, 1.0)
     for k in range(traj.time.size - 1):
-        for pos, quat in zip(*traj.between(k, fractions)):
+        for pos, quat in zip(*traj.between(k, fractions), strict=True):
             d.mocap_pos[mocap], d.mocap_quat[mocap] = pos, quat
             mj.mj_step(m, d)
         mj.mj_kinematics(m, d)

@@ -140,7 +140,7 @@ def block_knots(scene: MjcfScene, fe_model: Model, commands: Sequence[Command]) 
         raise SolverFailure(f"FE step {len(run.reports)} failed: {run.reports[-1].message}")
     disp = np.vstack([np.zeros(3)] + [np.asarray(r.lower_centroid, float) for r in run.reports])
     yaw = np.concatenate([[0.0], [float(r.lower_yaw) for r in run.reports]])
-    poses = [scene.body_pose(u, a) for u, a in zip(disp, yaw)]
+    poses = [scene.body_pose(u, a) for u, a in zip(disp, yaw, strict=True)]
     return BlockKnots(np.array([p for p, _ in poses]), np.array([q for _, q in poses]),
                       scene.lower_centre + scene.to_world(disp), scene.yaw + yaw)
 

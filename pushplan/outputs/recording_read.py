@@ -51,7 +51,7 @@ def _commands(rows, path) -> tuple:
     if len(rows) > MAX_STEPS:
         raise InputError(f"{path}: {len(rows)} recorded steps, more than {MAX_STEPS}")
     try:
-        return tuple(command_from_dict(dict(zip(COMMAND_KEYS, (v[0] for v in row[1:5]))), f"{path} step {row[0]}")
+        return tuple(command_from_dict(dict(zip(COMMAND_KEYS, (v[0] for v in row[1:5]), strict=True)), f"{path} step {row[0]}")
                      for row in rows)
     except (TypeError, IndexError) as exc:
         raise InputError(f"{path}: a recorded step is not a command ({exc})") from None
@@ -82,7 +82,7 @@ def read_recording(path) -> RecordedRun:
             info = _info(batch, path)
         elif chunk.entity_path == "/run/step":
             names = ("step", "dx", "dy", "dz", "dtheta_deg", "lower_centroid")
-            rows.extend(zip(*(_column(batch, n, path) for n in names)))
+            rows.extend(zip(*(_column(batch, n, path) for n in names), strict=True))
     if info is None:
         raise InputError(f"{path} is not a pushplan recording (no run/info)")
     try:

@@ -144,7 +144,7 @@ def _is_temporary(name: str) -> bool:
 def remove_temporaries(folder: Path) -> list[Path]:
     """Remove the ``.FILE.XXXXXXXX.tmp`` files of killed writers under ``folder``."""
     removed = []
-    for root, dirs, files in os.walk(folder):
+    for root, _dirs, files in os.walk(folder):
         for name in files:
             if _is_temporary(name):
                 path = Path(root) / name

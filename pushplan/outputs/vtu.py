@@ -27,7 +27,7 @@ def _write_mesh(path: Path, mesh) -> Path:
 
 def _series(reports: list[StepReport], paths: list[Path]) -> bytes:
     """The ``.pvd`` collection: one ``DataSet`` per step, its time the step index."""
-    entries = "\n".join(f'    <DataSet timestep="{r.step_index}" file="{p.name}"/>' for r, p in zip(reports, paths))
+    entries = "\n".join(f'    <DataSet timestep="{r.step_index}" file="{p.name}"/>' for r, p in zip(reports, paths, strict=True))
     return (f'<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n{entries}\n'
             "  </Collection>\n</VTKFile>\n").encode()
 

@@ -40,7 +40,7 @@ class Start:
 
 def _same(a: Command, b: Command) -> bool:
     return all(math.isclose(u, v, rel_tol=1e-9, abs_tol=1e-15)
-               for u, v in zip((a.dx, a.dy, a.dz, a.dtheta), (b.dx, b.dy, b.dz, b.dtheta)))
+               for u, v in zip((a.dx, a.dy, a.dz, a.dtheta), (b.dx, b.dy, b.dz, b.dtheta), strict=True))
 
 
 def measured_start(scenario: Scenario, spec: PlanSpec, obs: Observations) -> Start:

@@ -24,7 +24,7 @@ def observed_values(steps) -> dict:
     force = -np.array([s.upper_force for s in steps], float).reshape(-1, 3)
     yaw = np.array([math.degrees(s.lower_yaw) for s in steps], float)
     columns = (lower[:, 0], lower[:, 1], yaw, force[:, 0], force[:, 1], force[:, 2])
-    return dict(zip(OBSERVED_COLUMNS, columns))
+    return dict(zip(OBSERVED_COLUMNS, columns, strict=True))
 
 
 def observations_from_steps(steps: list[StepSummary], columns=OBSERVED_COLUMNS) -> Observations:

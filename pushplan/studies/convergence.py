@@ -129,7 +129,7 @@ def sweep_levels(scenario_file, out, **options):
         sweep = parse_sweep(data, scenario_file)
         run_sweep(sweep, out / "levels", **options)
         levels = []
-        for case, elements in zip(sweep.cases, meshes):
+        for case, elements in zip(sweep.cases, meshes, strict=True):
             summary = RunSummary.from_dict(read_json(out / "levels" / "cases" / case.case_id / "summary.json",
                                                      "level summary"))
             levels.append(_level(scenario, elements, summary, summary.elapsed_s))

@@ -68,7 +68,7 @@ def contour_figure(runs: list[Run], scenarios: list[Scenario], field: str, which
     FigureCanvasAgg(fig)
     fig.subplots_adjust(left=0.06, right=0.93, top=0.84, bottom=0.12, wspace=0.15)
     axes = fig.subplots(1, 3, sharey=True)
-    for k, (ax, v, rep) in enumerate(zip(axes, values, reps)):
+    for k, (ax, v, rep) in enumerate(zip(axes, values, reps, strict=True)):
         cs = ax.contourf(gx, gy, v, levels=levels, cmap="viridis")
         ax.contour(gx, gy, v, levels=levels[::4], colors="k", linewidths=0.4)
         st = rep.node_status.reshape(gx.shape)

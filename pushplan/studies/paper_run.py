@@ -41,7 +41,7 @@ def _record_cases(scenarios, runs, out: Path, push) -> tuple[list[PaperCase], li
     the cases and the files written (relative to ``out``)."""
     files = [f"{sc.name}/{f}" for sc in scenarios for f in RUN_FILES if (out / sc.name / f).exists()]
     cases = []
-    for sc, run in zip(scenarios, runs):
+    for sc, run in zip(scenarios, runs, strict=True):
         good = run.converged_reports
         cases.append(PaperCase(sc, run, tuple(step_record(run.model, r, push) for r in good)))
         if good:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
-import os
 import tempfile
 import traceback
 from dataclasses import dataclass, field

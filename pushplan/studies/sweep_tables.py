@@ -167,7 +167,7 @@ def heatmap_figure(rows: list[dict], spec: Heatmap, title: str = "") -> bytes:
     fig = Figure(figsize=(1.2 + 0.75 * len(xs) * n, 1.6 + 0.5 * len(ys)), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, n, squeeze=False)[0]
-    for ax, column in zip(axes, spec.values):
+    for ax, column in zip(axes, spec.values, strict=True):
         grid = np.full((len(ys), len(xs)), np.nan)
         for r in rows:
             if r["status"] == "completed" and r[column] is not None:
