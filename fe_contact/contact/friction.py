@@ -28,6 +28,7 @@ __all__ = [
     "modified_velocity",
     "project_elliptic_cone",
     "local_frame",
+    "frame_derivative",
     "to_local",
     "to_global",
     "scaling_diagonal",
@@ -271,6 +272,13 @@ def local_frame(angle) -> np.ndarray:
     zero, one = np.zeros_like(th), np.ones_like(th)
     rows = [np.stack(r, -1) for r in ((zero, zero, one), (c, s, zero), (-s, c, zero))]
     return np.stack(rows, -2)
+
+
+def frame_derivative(angle: float) -> np.ndarray:
+    """``dT/d angle`` (3, 3), 1/rad, of :func:`local_frame`'s ``T`` (rows ``n``,
+    ``t_x``, ``t_y``): the friction-angle term of the sensitivities."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[0.0, 0.0, 0.0], [-s, c, 0.0], [-c, -s, 0.0]])
 
 
 def to_local(v_world, angle) -> np.ndarray:

@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.linalg as sla
 
+from ..contact.friction import frame_derivative
 from ..contact.law_jacobian import law_jacobian
 from ..fem.elasticity import internal_force
 from ..fem.loads import body_force
@@ -232,13 +233,6 @@ class HeldLinearisation:
         dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
         self._material = (mat.lame_lambda * a + mat.lame_mu * b) / E, dlam_dnu * a + dmu_dnu * b
         return self._material
-
-
-def frame_derivative(angle: float) -> np.ndarray:
-    """``dT/dalpha`` (3, 3) of the world -> local frame of
-    :func:`~fe_contact.stepping.model.local_frame` (rows ``n``, ``t_x``, ``t_y``)."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[0.0, 0.0, 0.0], [-s, c, 0.0], [-c, -s, 0.0]])
 
 
 def upper_pose_jacobian(model: Model, rotation: float) -> np.ndarray:
