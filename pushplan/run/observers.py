@@ -123,8 +123,10 @@ class Progress:
 
     def step(self, run, report: StepReport) -> None:
         i = len(run.reports)
-        done = int(self.WIDTH * i / max(self.n, 1))
-        text = (f"step {i}/{self.n}  newton {report.newton_iterations}  contact {report.contact_iterations}"
+        done = min(int(self.WIDTH * i / max(self.n, 1)), self.WIDTH)
+        # a release's steps come after the n load steps, as many as its step control takes
+        where = f"step {i}/{self.n}" if i <= self.n else f"release step {i - self.n}"
+        text = (f"{where}  newton {report.newton_iterations}  contact {report.contact_iterations}"
                 f"  {report.wall_time:.2f}s")
         if not self.tty:
             self.stream.write(text + "\n")
