@@ -54,6 +54,7 @@ import numpy as np
 
 from ..fem.elasticity import internal_force
 from ..fem.loads import Loading
+from .adaptive import controlled_step
 from .held import next_state
 from .measure import measure
 from .model import Command, Model, State, StepReport
@@ -90,6 +91,11 @@ class Release:
         has let go (m, >= 0): the robot's motion, which changes nothing once
         the pad is open; a bonded pad with weight ends where it carries
         nothing (it cannot rise without lifting the block).
+    error_tol : float
+        A frictional pad's lift: the error of the rest pose the adaptive steps
+        allow, as a fraction of the loaded lag (of the block's size without a
+        lag), in (0, 1): each step of ``steps`` is checked by step doubling and
+        refined where it needs it (:func:`fe_contact.stepping.adaptive.controlled_step`).
     """
 
     mode: str
@@ -97,6 +103,7 @@ class Release:
     settle_tol: float = 1e-10
     max_steps: int = 200
     height: float = 0.0
+    error_tol: float = 1e-3
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -107,6 +114,8 @@ class Release:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
         if not 0 < self.settle_tol < 1:
             raise ValueError(f"settle_tol must be in (0, 1), got {self.settle_tol}")
+        if not 0 < self.error_tol < 1:
+            raise ValueError(f"error_tol must be in (0, 1), got {self.error_tol}")
         if not (np.isfinite(self.height) and self.height >= 0):
             raise ValueError(f"height must be >= 0 m, got {self.height}")
 
@@ -144,6 +153,8 @@ class ReleaseSchedule:
         self.lifted_off = False
         self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
         self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
+        lag = float(np.linalg.norm(loaded.lag)) if loaded is not None else 0.0
+        self.error_tol = release.error_tol * (lag if lag > 0 else self.size)  # m
         if self.pad:
             self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
         self.taken = 0
@@ -165,6 +176,16 @@ class ReleaseSchedule:
             command = None if report.regularisation_force <= rel.settle_tol * self.weight else Command()
         self.taken += command is not None
         return command
+
+    def take(self, model: Model, state: State, command: Command, step, consume: bool = False):
+        """``command`` from ``state`` with ``step`` (``step(model, state,
+        command, consume=...)``): a frictional pad's lift under step-doubling
+        error control (``Release.error_tol`` of the lag over the press depth,
+        :func:`~fe_contact.stepping.adaptive.controlled_step`, which keeps
+        ``state``), any other release step as it is.  Returns (State, StepReport)."""
+        if self.pad and command.moves:
+            return controlled_step(model, state, command, step, self.error_tol, self.depth)
+        return step(model, state, command, consume=consume)
 
     def _lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
         if self.pad:

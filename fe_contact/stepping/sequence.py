@@ -60,12 +60,19 @@ class StepSequence:
 
     def __iter__(self):
         for i, command in enumerate(self._commands()):
-            self.state, report = step(self.model, self.state, command, self.hook,
-                                      consume=self.consume_start or i > 0)
+            consume = self.consume_start or i > 0
+            if self.schedule is not None:  # a release step: the schedule's step control
+                self.state, report = self.schedule.take(self.model, self.state, command, self._step, consume)
+            else:
+                self.state, report = self._step(self.model, self.state, command, consume=consume)
             self.reports.append(report)
             yield self.state, report
             if not report.converged and self.stop_on_failure:
                 return
+
+    def _step(self, model: Model, state: State, command, consume: bool = False):
+        """:func:`~fe_contact.stepping.step.step` with the sequence's local-problem hook."""
+        return step(model, state, command, self.hook, consume=consume)
 
     def _commands(self):
         """The commands, then the release's, each chosen after the last report."""

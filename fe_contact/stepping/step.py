@@ -22,6 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .adaptive import half_command, joined_report
 from .gripper import compliant_step
 from .held import held_step, next_state
 from .model import Command, Model, State, StepReport
@@ -101,17 +102,14 @@ def _split_step(model: Model, state: State, command: Command, t0: float, hook, d
         return next_state(state, eq, translation, rotation, report), report
     if depth >= MAX_SPLITS:
         return state, report
-    half = Command(dx=command.dx / 2, dy=command.dy / 2, dz=command.dz / 2, dtheta=command.dtheta / 2)
+    half = half_command(command)
     middle, first = _split_step(model, state, half, t0, hook, depth + 1)
     if not first.converged:
         return state, first
     end, second = _split_step(model, middle, half, t0, hook, depth + 1)
     if not second.converged:
         return state, second
-    report = replace(second, command=command, step_index=state.step_index + 1,
-                     newton_iterations=first.newton_iterations + second.newton_iterations,
-                     message=f"converged in parts (half steps, {depth + 1} level(s) deep)",
-                     slip_increment=second.slip_increment + first.slip_increment)
+    report = joined_report(state, first, second, command, f"converged in parts (half steps, {depth + 1} level(s) deep)")
     return replace(end, step_index=state.step_index + 1), report
 
 
