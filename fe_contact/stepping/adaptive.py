@@ -35,12 +35,14 @@ def half_command(command: Command) -> Command:
     return Command(dx=command.dx / 2, dy=command.dy / 2, dz=command.dz / 2, dtheta=command.dtheta / 2)
 
 
-def joined_report(state: State, first: StepReport, second: StepReport, command: Command, message: str) -> StepReport:
+def joined_report(state: State, first: StepReport, second: StepReport, command: Command, message: str,
+                  combine=sum) -> StepReport:
     """The report of a step taken in two parts from ``state``: the second
-    part's, with the whole ``command``, both parts' Newton iterations and slip
-    increments, and ``message``."""
+    part's, with the whole ``command``, both parts' slip increments, their
+    Newton iterations combined by ``combine`` (``sum``: the cost; ``max``: the
+    longest Newton loop), and ``message``."""
     return replace(second, command=command, step_index=state.step_index + 1,
-                   newton_iterations=first.newton_iterations + second.newton_iterations,
+                   newton_iterations=combine((first.newton_iterations, second.newton_iterations)),
                    slip_increment=first.slip_increment + second.slip_increment, message=message)
 
 
@@ -67,29 +69,26 @@ def controlled_step(model, state: State, command: Command, step, tol: float, spa
     Returns
     -------
     (State, StepReport)
-        The end of the step, and its report (joined over the parts); on a
-        failure, ``state`` and the failed part's report.
+        The end of the step, and its report (joined over the parts, its
+        ``newton_iterations`` the longest Newton loop's).  A part that fails
+        stops the refinement there (the coarser result stands); if the half
+        steps fail, the whole step's result (converged or failed) is returned.
     """
     full = step(model, state, command) if full is None else full
     half = half_command(command)
     first = step(model, state, half)
-    if not first[1].converged:
-        return state, first[1]
-    second = step(model, first[0], half)
-    if not second[1].converged:
-        return state, second[1]
+    second = step(model, first[0], half) if first[1].converged else first
+    if not second[1].converged:  # the error cannot be estimated: the whole step as it is
+        return full
     size = abs(command.dz) or float(np.hypot(command.dx, command.dy))
     error = np.inf if not full[1].converged else \
         float(np.linalg.norm(full[0].displacement - second[0].displacement, axis=1).max())
-    if error <= tol * size / span or depth >= MAX_REFINE:
-        end, parts = second[0], (first[1], second[1])
-    else:
+    end, parts = second[0], (first[1], second[1])
+    if error > tol * size / span and depth < MAX_REFINE:
         middle, a = controlled_step(model, state, half, step, tol, span, first, depth + 1)
-        if not a.converged:
-            return state, a
-        end, b = controlled_step(model, middle, half, step, tol, span, None, depth + 1)
-        if not b.converged:
-            return state, b
-        parts = (a, b)
-    report = joined_report(state, *parts, command, f"converged in parts (error control, {depth + 1} level(s) deep)")
+        end_b, b = controlled_step(model, middle, half, step, tol, span, None, depth + 1) if a.converged else (None, a)
+        if b.converged:  # else: the two half steps as they are
+            end, parts = end_b, (a, b)
+    report = joined_report(state, *parts, command, f"converged in parts (error control, {depth + 1} level(s) deep)",
+                           combine=max)
     return replace(end, step_index=state.step_index + 1), report
