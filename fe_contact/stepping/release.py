@@ -103,7 +103,7 @@ class Release:
     settle_tol: float = 1e-10
     max_steps: int = 200
     height: float = 0.0
-    error_tol: float = 1e-3
+    error_tol: float = 1e-2
 
     def __post_init__(self):
         if self.mode not in MODES:
