@@ -26,8 +26,8 @@ import numpy as np
 
 from .model import Command, State, StepReport
 
-MAX_REFINE = 5
-"""Step-doubling levels at most (a part at least 2**-5 of the step); deeper, the half steps are accepted."""
+MAX_REFINE = 8
+"""Step-doubling levels at most (a part at least 2**-8 of the step); deeper, the half steps are accepted."""
 
 
 def half_command(command: Command) -> Command:
