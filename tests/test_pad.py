@@ -28,8 +28,11 @@ def model(ratio, beta=1e-2, tol=1e-10, density=1000.0):
                  quadrature=2, pad=pad, options=SolverOptions(pad_regularisation=beta, newton_tol=tol, local_tol=tol))
 
 
+DEFAULT_ERROR_TOL = Release("lift", 1).error_tol
+
+
 @functools.lru_cache(maxsize=None)
-def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0, error_tol=Release("lift", 1).error_tol):
+def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0, error_tol=DEFAULT_ERROR_TOL):
     """Loaded report, release reports and Rest of a press, 2 pushes and a lift of ``steps``."""
     m = model(ratio, beta, tol)
     state, reports = run(m, [Command(dz=-4e-4), PUSH, PUSH])
