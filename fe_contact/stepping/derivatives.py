@@ -35,6 +35,7 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .predictor import commanded_pose
+from .sequence import StepSequence
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
 from .step import step
 
@@ -345,10 +346,9 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
 
 def _plain(model, commands, state) -> np.ndarray:
     """Outputs (n_steps, 9) of a plain rollout; ValueError if a step fails."""
-    state = initial_state(model) if state is None else replace(state, tangent=None)
+    start = None if state is None else replace(state, tangent=None)
     out = []
-    for k, command in enumerate(commands):
-        state, report = step(model, state, command)
+    for k, (state, report) in enumerate(StepSequence(model, commands, start)):
         if not report.converged:
             raise ValueError(f"central difference: step {k + 1} did not converge: {report.message}")
         out.append(_report_outputs(report, state))
