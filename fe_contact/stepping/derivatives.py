@@ -21,8 +21,21 @@ balance ``g(p) = F(p) - k (c - p) = 0``; differentiating it,
 
     (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p,
 
-with ``dF/dp`` from three more directions of the same held step.  Release
-steps (``open > 0``) are not differentiated.
+with ``dF/dp`` from three more directions of the same held step.
+
+A bonded lift (``release=Release("lift", n)``) adds one row, the rest after
+the release.  Its steps are held steps whose heights the release schedule
+chose (:class:`~fe_contact.stepping.release.ReleaseSchedule`): each height is
+differentiated as the schedule computed it (a lift step ``h + d / n``, ``d``
+the press depth; a put-down target of
+:func:`~fe_contact.stepping.release.put_down_target`, a function of the
+heights and forces met, of the weight and of ``E A / H``), and the last one,
+the put-down's root ``h*`` where the plate carries nothing, by the implicit
+function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
+from one more input column (the step's own height).  The path matters: the
+put-down overshoots below ``h*`` and comes back, and the contacts that slip
+on the way keep it.  Open releases (``open > 0``) and a frictional pad are
+not differentiated.
 """
 
 from __future__ import annotations
@@ -34,10 +47,10 @@ import numpy as np
 
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
+from .release import Release
 from .predictor import commanded_pose
 from .sequence import StepSequence
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
-from .step import step
 
 COMPONENTS = ("dx", "dy", "dz", "dtheta")
 PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density", "stiffness_xy", "stiffness_yaw")
@@ -123,9 +136,12 @@ def with_parameters(model: Model, **values) -> Model:
                    gripper=Gripper(v["stiffness_xy"], v["stiffness_yaw"]))
 
 
-def _check(model, commands, parameters) -> tuple[list, tuple]:
+def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
     if not isinstance(model, Model):
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
+    if release is not None and (not isinstance(release, Release) or release.mode != "lift"):
+        raise ValueError(f"release must be a Release of mode 'lift' (an open release is not differentiated), "
+                         f"got {release!r}")
     if getattr(model, "pad", None) is not None:
         raise ValueError("derivatives with a frictional pad on the upper face are not implemented (pad=None: bonded)")
     commands = list(commands)
@@ -153,53 +169,124 @@ def _lame_linear(model: Model) -> bool:
 
 
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
-                        start: RolloutDerivatives | None = None) -> RolloutDerivatives:
+                        start: RolloutDerivatives | None = None, release: Release | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
     differentiate every output of every step (module docstring).
 
     ``state`` is held fixed: its own dependence on the parameters is not
     included.  To include it, give instead ``start``, an earlier converged
     result of this model (e.g. the press), whose final state and parameters
-    the rollout continues from.
+    the rollout continues from.  With ``release`` (a bonded ``"lift"``), the
+    block is let go after the commands (:class:`~fe_contact.stepping.release.ReleaseSchedule`)
+    and the outputs have one more row: the rest, after the release (module
+    docstring: the release's heights are held fixed, the last one set by the
+    root ``F_z = 0``).
 
     Raises
     ------
     ValueError
-        Not a Model or Commands, a release command, an unknown parameter, or
-        a gripper stiffness with a rigid gripper.
+        Not a Model or Commands, a release command, an open release or a
+        frictional pad, an unknown parameter, or a gripper stiffness with a
+        rigid gripper.
     """
     if start is not None:
         if not isinstance(start, RolloutDerivatives) or not start.converged:
             raise ValueError("start must be a converged RolloutDerivatives")
         state, parameters = start.state, start.parameters
-    commands, parameters = _check(model, commands, parameters)
+    commands, parameters = _check(model, commands, parameters, release)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     K, n_par = len(commands), len(parameters)
-    J = 4 * K + n_par
+    J = 4 * K + n_par + 1  # the last column: the height of the current release step
     seeds = np.zeros((len(PARAMETERS), J))  # d parameter / d input
     for j, p in enumerate(parameters):
         seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
     d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
     if start is not None:
         for name in ("displacement", "pose", "plate"):
-            getattr(d_state, name)[:, 4 * K:] = getattr(start.parameter_state, name)
-    outputs, d_out, reports = np.zeros((K, 9)), np.zeros((K, 9, J)), []
+            getattr(d_state, name)[:, 4 * K:J - 1] = getattr(start.parameter_state, name)
+    rows = K + (release is not None)
+    outputs, d_out, reports = np.zeros((rows, 9)), np.zeros((rows, 9, J)), []
     status, message = Status.CONVERGED, ""
-    for k, command in enumerate(commands):
+    sequence = StepSequence(model, commands, state, release=release, consume_start=False)
+    path = []  # (d height, d F_z) of each release step
+    for k, (new_state, report) in enumerate(sequence):
         d_command = np.zeros((4, J))
-        d_command[:, 4 * k:4 * k + 4] = np.eye(4)
-        result = _step_derivative(model, state, command, d_state, d_command, seeds)
+        if k < K:
+            d_command[:, 4 * k:4 * k + 4] = np.eye(4)
+        else:  # a release step: its height as the schedule chose it; the last column is its own
+            if k == K:
+                d_depth = d_state.pose[2].copy()  # the press depth is -t_z at the release's start
+            d_command[2] = _release_height_derivative(model, sequence.schedule, seeds, d_state.pose[2], d_depth,
+                                                      path) - d_state.pose[2]
+            d_command[2, -1] = 1.0
+            for name in ("displacement", "pose", "plate"):
+                getattr(d_state, name)[:, -1] = 0.0
+        result = _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
         if isinstance(result[0], Status):
             status, message = result
             break
-        state, report, d_state, outputs[k], d_out[k] = result
+        state, d_state, row, d_row = result
+        sequence.state = state  # with the tangent at the converged configuration
         reports.append(report)
-    n = len(reports)
-    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:] for k in ("displacement", "pose", "plate")))
+        outputs[min(k, rows - 1)], d_out[min(k, rows - 1)] = row, d_row
+        if k >= K:
+            path.append((d_state.pose[2], d_row[OUTPUTS.index("force_z")]))
+    n = min(len(reports), K) if status is not Status.CONVERGED else rows
+    if release is not None and status is Status.CONVERGED:
+        d_state = _put_down_root(model, sequence.schedule, d_state, d_out[-1])
+    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:J - 1] for k in ("displacement", "pose", "plate")))
     return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
-                              d_out[:n, :, 4 * K:], parameters, state, tuple(reports), time.perf_counter() - t0,
+                              d_out[:n, :, 4 * K:J - 1], parameters, state, tuple(reports), time.perf_counter() - t0,
                               tail)
+
+
+def _release_height_derivative(model: Model, schedule, seeds: np.ndarray, d_current: np.ndarray,
+                               d_depth: np.ndarray, path: list) -> np.ndarray:
+    """Derivative (J,) of the height the release's last command goes to.
+
+    The schedule says how it chose that height
+    (``ReleaseSchedule.height_partials``): a lift step ``h + d / steps``
+    (``d`` the press depth, derivative ``d_depth``), an absolute height, or a
+    put-down's target, a function of the put-down's points (plate height and
+    vertical force; ``path`` holds their derivatives, one ``(d_h, d_F)`` per
+    release step so far), of the weight ``W = rho g V`` and of the column's
+    stiffness ``k = E A / H`` (:func:`~fe_contact.stepping.release.put_down_target`).
+    The last height is then replaced by the root (:func:`_put_down_root`).
+    """
+    out = np.zeros(seeds.shape[1])
+    points = getattr(schedule, "contact_points", [])
+    first = len(path) - len(points)  # the put-down's points are the last steps' (the current one excepted)
+    for key, c in schedule.height_partials.items():
+        if key == "current":
+            out += c * d_current
+        elif key == "depth":
+            out -= c * d_depth
+        elif key == "weight":
+            out += c * model.weight / model.material.density * seeds[PARAMETERS.index("density")]
+        elif key == "stiffness":
+            out += c * schedule.axial_stiffness / model.material.young * seeds[PARAMETERS.index("young")]
+        else:
+            kind, i = key
+            out += c * path[first + i][0 if kind == "h" else 1]
+    return out
+
+
+def _put_down_root(model: Model, schedule, d_state: "StateDerivative", d_rest: np.ndarray) -> "StateDerivative":
+    """The root condition of a put-down (:meth:`~fe_contact.stepping.release.ReleaseSchedule._put_down`):
+    the last height ``h*`` is where the plate's vertical force vanishes,
+    ``g(h*, p) = F_z = 0``, so ``dh*/dp = -g_p / g_h`` (implicit function
+    theorem; ``g_h`` the last column, the last step's own height) and every
+    derivative gains ``d/dh dh*/dp``.  ``d_rest`` (9, J) is corrected in place;
+    returns the corrected state derivative.  Nothing to do when the block was
+    not put down (no weight: it ends in the air at the release's height)."""
+    if not (schedule.lifted_off and schedule.contact_points):
+        return d_state
+    g = d_rest[OUTPUTS.index("force_z")]
+    dh = -g / g[-1]
+    dh[-1] = 0.0
+    d_rest += np.outer(d_rest[:, -1], dh)
+    return StateDerivative(*(x + np.outer(x[:, -1], dh) for x in (d_state.displacement, d_state.pose, d_state.plate)))
 
 
 @dataclass(frozen=True)
@@ -212,13 +299,14 @@ class StateDerivative:
     plate: np.ndarray
 
 
-def _step_derivative(model, state, command, d_state, d_command, seeds):
-    """One step and its derivatives: (state, report, d_state, outputs (9,),
-    d_outputs (9, J)), or (status, message) if the step or its linearisation failed."""
-    new_state, report = step(model, state, command)
+def _step_derivative(model, state, new_state, report, d_state, d_command, seeds):
+    """The derivatives of the step from ``state`` that ended in ``(new_state,
+    report)``: (state with the tangent at the converged configuration, d_state,
+    outputs (9,), d_outputs (9, J)), or (status, message) if the step or its
+    linearisation failed."""
     if not report.converged:
         return report.status, f"step {state.step_index + 1}: {report.message}"
-    translation, rotation = commanded_pose(state, command)
+    translation, rotation = commanded_pose(state, report.command)
     d_pose = d_state.pose + d_command
     lin = HeldLinearisation(model, state.displacement, report.displacement, report.reaction_local,
                             report.node_status)
@@ -235,7 +323,7 @@ def _step_derivative(model, state, command, d_state, d_command, seeds):
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), d_force.sum(axis=0), d_plate])
     outputs = _report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
-    return new_state, report, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
+    return new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
 
 
 def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):
@@ -285,7 +373,7 @@ class DerivativeCheck:
 
 
 def check_derivatives(model: Model, commands, state: State | None = None, parameters=None,
-                      rel_step: float = 1e-5, floor: float = 1e-4) -> DerivativeCheck:
+                      rel_step: float = 1e-5, floor: float = 1e-4, release: Release | None = None) -> DerivativeCheck:
     """Compare :func:`rollout_derivatives` with central differences of rollouts
     (as MuJoCo's ``check_derivatives``).
 
@@ -307,8 +395,8 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
     ValueError
         As :func:`rollout_derivatives`, or a rollout that does not converge.
     """
-    commands, parameters = _check(model, commands, parameters)
-    exact = rollout_derivatives(model, commands, state, parameters)
+    commands, parameters = _check(model, commands, parameters, release)
+    exact = rollout_derivatives(model, commands, state, parameters, release=release)
     if not exact.converged:
         raise ValueError(f"the rollout does not converge: {exact.message}")
     arr = np.array([[c.dx, c.dy, c.dz, c.dtheta] for c in commands])
@@ -329,28 +417,33 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
         else:
             p = parameters[j - 4 * len(commands)]
             mdl = with_parameters(model, **{p: values[p] + h})
-        return _plain(mdl, cmds, state)
+        return _plain(mdl, cmds, state, release)
 
     numeric = np.column_stack([(outputs(j, h) - outputs(j, -h)).ravel() / (2 * h) for j, h in enumerate(steps)])
     analytic = exact.jacobian()
     o = np.abs(exact.outputs)
     kind = np.array([0, 0, 1, 2, 2, 2, 0, 0, 1])
     scale = np.maximum([o[:, kind == g].max() for g in range(3)], [move, move / size, 1e-300])[kind]
-    norm = np.tile(scale, len(commands))[:, None]
+    norm = np.tile(scale, exact.outputs.shape[0])[:, None]
     A, N = analytic * typical / norm, numeric * typical / norm
     err = np.abs(A - N) / np.maximum(np.abs(N), floor * np.abs(N).max())
     names_in = tuple(f"{c}[{k}]" for k in range(len(commands)) for c in COMPONENTS) + tuple(parameters)
-    names_out = tuple(f"{o}[{k}]" for k in range(len(commands)) for o in OUTPUTS)
+    names_out = tuple(f"{o}[{k if k < len(commands) else 'rest'}]" for k in range(exact.outputs.shape[0])
+                      for o in OUTPUTS)
     return DerivativeCheck(analytic, numeric, err, names_in, names_out, steps)
 
 
-def _plain(model, commands, state) -> np.ndarray:
-    """Outputs (n_steps, 9) of a plain rollout; ValueError if a step fails."""
+def _plain(model, commands, state, release=None) -> np.ndarray:
+    """Outputs (n_steps, 9) of a plain rollout, and with ``release`` one more
+    row: the rest; ValueError if a step fails."""
     start = None if state is None else replace(state, tangent=None)
     out = []
-    for k, (state, report) in enumerate(StepSequence(model, commands, start)):
+    for k, (state, report) in enumerate(StepSequence(model, commands, start, release=release)):
         if not report.converged:
             raise ValueError(f"central difference: step {k + 1} did not converge: {report.message}")
+        if k < len(commands) or release is None:
+            out.append(_report_outputs(report, state))
+    if release is not None:
         out.append(_report_outputs(report, state))
     return np.array(out)
 

@@ -158,6 +158,7 @@ class ReleaseSchedule:
         if self.pad:
             self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
         self.taken = 0
+        self.height_partials: dict = {}  # the last command's height: its partial derivatives (put_down_target)
 
     @property
     def force_scale(self) -> float:
@@ -191,14 +192,15 @@ class ReleaseSchedule:
         if self.pad:
             return self._pad_lift(j, state, report)
         dz = self.depth / self.release.steps
+        self.height_partials = {"current": 1.0, "depth": 1.0 / self.release.steps}
         if j < self.release.steps:
             return Command(dz=dz)
         if not self.lifted_off:
             if report.normal_force > LIFT_TOL * max(self.loaded_normal, self.weight):
                 return Command(dz=dz)
             self.lifted_off = True
-            if self.weight == 0:
-                return self._rise(state)  # nothing to put down: the plate carries nothing off the floor
+        if self.weight == 0:
+            return self._rise(state)  # nothing to put down: the plate carries nothing off the floor
         return self._put_down(state, report)
 
     def _rise(self, state: State) -> Command | None:
@@ -208,9 +210,11 @@ class ReleaseSchedule:
         dz = self.release.height - float(state.upper_translation[2])
         if dz > SETTLE_MOTION * self.size:
             self.risen = True
+            self.height_partials = {}  # an absolute height
             return Command(dz=dz)
         if self.risen:
             self.risen = False
+            self.height_partials = {"current": 1.0}
             return Command()
         return None
 
@@ -257,20 +261,43 @@ class ReleaseSchedule:
         points, touching = self.contact_points, report.normal_force > LIFT_TOL * self.weight
         slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
         points.append((h, force, touching))
-        pulls = [(hh, f) for hh, f, _ in points if f > 0]
-        pushes = [(hh, f) for hh, f, _ in points if f < 0]
-        if not pushes:  # not down to the floor's load yet
-            target = min(-self.weight / (2.0 * self.axial_stiffness), h - self.weight / self.axial_stiffness)
-            return Command(dz=target - h)
-        (h_hi, f_hi), (h_lo, f_lo) = min(pulls), max(pushes)
-        if slow:
-            target = 0.5 * (h_lo + h_hi)
-        elif f_hi >= self.weight * (1.0 - LIFT_TOL):  # off the floor up there: F is flat, step with E A / H
-            target = h_lo - f_lo / self.axial_stiffness
-            target = target if target < h_hi else 0.5 * (h_lo + h_hi)
-        else:
-            target = h_lo - f_lo * (h_hi - h_lo) / (f_hi - f_lo)
+        target, self.height_partials = put_down_target(points, self.weight, self.axial_stiffness, slow)
         return Command(dz=target - h)
+
+
+def put_down_target(points, weight: float, axial_stiffness: float, slow: bool) -> tuple[float, dict]:
+    """The next height of a put-down (:meth:`ReleaseSchedule._put_down`), m,
+    and its partial derivatives (to differentiate the release's path,
+    :mod:`fe_contact.stepping.derivatives`).
+
+    ``points`` are the put-down's ``(plate height m, vertical force N,
+    touching)`` so far, the last the current one; ``weight`` ``W`` (N),
+    ``axial_stiffness`` ``k = E A / H`` (N/m); ``slow`` bisects.  The partials
+    are keyed ``("h", i)``, ``("f", i)`` (of point ``i``), ``"weight"``,
+    ``"stiffness"``: the bracket's regula falsi ``h_lo - f_lo (h_hi - h_lo) /
+    (f_hi - f_lo)``, its bisection, the step ``h_lo - f_lo / k`` below a flat
+    (off the floor) end, or before the first push ``min(-W / (2 k), h - W / k)``.
+    """
+    W, k = weight, axial_stiffness
+    pulls = [i for i, (_, f, _) in enumerate(points) if f > 0]
+    pushes = [i for i, (_, f, _) in enumerate(points) if f < 0]
+    if not pushes:  # not down to the floor's load yet
+        last = len(points) - 1
+        if -W / (2.0 * k) <= points[last][0] - W / k:
+            return -W / (2.0 * k), {"weight": -1.0 / (2.0 * k), "stiffness": W / (2.0 * k**2)}
+        return points[last][0] - W / k, {("h", last): 1.0, "weight": -1.0 / k, "stiffness": W / k**2}
+    hi = min(pulls, key=lambda i: points[i][:2])
+    lo = max(pushes, key=lambda i: points[i][:2])
+    (h_hi, f_hi, _), (h_lo, f_lo, _) = points[hi], points[lo]
+    middle = 0.5 * (h_lo + h_hi), {("h", lo): 0.5, ("h", hi): 0.5}
+    if slow:
+        return middle
+    if f_hi >= W * (1.0 - LIFT_TOL):  # off the floor up there: F is flat, step with E A / H
+        target = h_lo - f_lo / k
+        return (target, {("h", lo): 1.0, ("f", lo): -1.0 / k, "stiffness": f_lo / k**2}) if target < h_hi else middle
+    d, dh = f_hi - f_lo, h_hi - h_lo
+    return h_lo - f_lo * dh / d, {("h", lo): 1.0 + f_lo / d, ("h", hi): -f_lo / d, ("f", lo): -dh * f_hi / d**2,
+                                  ("f", hi): f_lo * dh / d**2}
 
 
 def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
