@@ -64,3 +64,22 @@ def test_exact_jacobian_gives_the_same_estimates_from_fewer_rollouts():
     assert exact.fe_rollouts <= exact.iterations + 2
     assert fd.fe_rollouts >= FEWER_ROLLOUTS * exact.fe_rollouts
     np.testing.assert_allclose(exact.sigma, fd.sigma, rtol=1e-3)
+
+
+def test_a_foam_blocks_stiffness_is_fitted_with_the_exact_jacobian():
+    # young of the hyperfoam law (issue 30 item 2): derivatives in the material constants for every law
+    text = FOAM.replace("poisson = 0.3", 'poisson = 0.3\nmodel = "hyperfoam"')
+    truth = parse_scenario(tomllib.loads(text.format(mu_x=0.6, mu_y=0.35, angle_deg=25.0)))
+    obs = observations_from_steps(drive(truth.model(), truth.commands).summary.steps)
+    obs = Observations(obs.commands, {k: v for k, v in obs.values.items() if k != "lower_yaw_deg"})
+    guess = parse_scenario(tomllib.loads(text.replace("young = 1e6", "young = 7e5").format(mu_x=0.6, mu_y=0.35,
+                                                                                          angle_deg=25.0)))
+    noise, fit = NoiseModel(1e-6, 1e-3, 0.01), ("mu_x", "young")
+    exact = identify(guess, obs, noise, fit=fit, exact=True, model_error=False)
+    fd = identify(guess, obs, noise, fit=fit, exact=False, model_error=False)
+    assert exact.converged and exact.exact_jacobian and not fd.exact_jacobian
+    young = exact.names.index("young")
+    assert abs(exact.estimate[young] - 1e6) <= 1e-6 * 1e6  # noise-free observations: the truth
+    gap = np.abs(exact.estimate - fd.estimate) / scales(exact.names, exact.estimate)
+    assert gap.max() <= SAME_ESTIMATE, (exact.estimate, fd.estimate)
+    assert exact.fe_rollouts <= exact.iterations + 2 and fd.fe_rollouts > exact.fe_rollouts

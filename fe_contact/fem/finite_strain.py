@@ -37,10 +37,10 @@ import math
 
 import numpy as np
 
-from .material import energy_density, principal_stiffness, stress, stress_and_tangent
+from .material import energy_density, principal_stiffness, stress, stress_and_tangent, stress_moduli_derivatives
 
 __all__ = ["ELEMENTS", "AUTO_FBAR_POISSON", "resolve_element", "element_forces", "element_tangents",
-           "element_energy", "point_deformation", "material_limit"]
+           "element_force_moduli_derivatives", "element_energy", "point_deformation", "material_limit"]
 
 ELEMENTS = ("hex8", "fbar")
 """Element formulations: the plain (fully integrated) hex8 and the F-bar hex8."""
@@ -95,7 +95,13 @@ def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
     if math.isfinite(min_det) and min_det <= 0:
         return np.zeros(Ue.shape), min_det  # inverted: no energy (ln J); min_det says so
     Fb = a[..., None, None] * F
-    S = stress(law, Fb, lam, mu)
+    return _forces_of_stress(grad, dvol, F, J, a, stress(law, Fb, lam, mu), fbar), min_det
+
+
+def _forces_of_stress(grad, dvol, F, J, a, S, fbar: bool):
+    """Element forces (n_elems, 8, 3) of the stresses ``S`` (e, q, 3, 3) at
+    ``F_bar = a F`` (module docstring): linear in ``S``."""
+    Fb = a[..., None, None] * F
     P = Fb @ S
     fe = _sum_grad_products(grad, P * (dvol * a)[:, :, None, None])
     if fbar:
@@ -104,7 +110,18 @@ def element_forces(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool):
         w = J * dvol / np.sum(J * dvol, axis=1, keepdims=True)
         H_bar = np.einsum("eq,eqai->eai", w, H)
         fe += (tau.sum(axis=1)[:, None, None] * H_bar - np.einsum("eq,eqai->eai", tau, H)) / 3.0
-    return fe, min_det
+    return fe
+
+
+def element_force_moduli_derivatives(grad, dvol, Ue, law: str, lam: float, mu: float, fbar: bool) -> np.ndarray:
+    """Derivatives of the element forces with respect to the Lame moduli at
+    fixed displacements, ``(df/dlambda, df/dmu)`` (2, n_elems, 8, 3), m^2: the
+    forces are linear in ``S`` at fixed ``F`` (both elements), so they are the
+    forces of ``dS/dlambda``, ``dS/dmu``
+    (:func:`~fe_contact.fem.material.stress_moduli_derivatives`)."""
+    F, J, a = point_deformation(grad, dvol, Ue, fbar)
+    dS = stress_moduli_derivatives(law, a[..., None, None] * F, lam, mu)
+    return np.stack([_forces_of_stress(grad, dvol, F, J, a, d, fbar) for d in dS])
 
 
 def _sum_grad_products(grad, P):

@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LAWS", "check_law", "green_lagrange", "stress", "stress_and_tangent", "energy_density",
-           "principal_stiffness"]
+__all__ = ["LAWS", "check_law", "green_lagrange", "stress", "stress_and_tangent", "stress_moduli_derivatives",
+           "energy_density", "principal_stiffness"]
 
 LAWS = ("stvk", "neo_hookean", "hyperfoam")
 """Names of the constitutive laws."""
@@ -124,6 +124,27 @@ def stress_and_tangent(law: str, F, lam: float, mu: float) -> tuple[np.ndarray, 
     D = scale[..., None, None, None, None] * np.einsum("...IJ,...KL->...IJKL", Ci, Ci) + coeff * (
         np.einsum("...IK,...JL->...IJKL", Ci, Ci) + np.einsum("...IL,...JK->...IJKL", Ci, Ci))
     return S, D
+
+
+def stress_moduli_derivatives(law: str, F, lam: float, mu: float) -> np.ndarray:
+    """``(dS/dlambda, dS/dmu)`` at fixed ``F`` (2, ..., 3, 3), dimensionless.
+
+    St Venant-Kirchhoff and the Neo-Hookean law are linear in their moduli:
+    ``(tr(E) I, 2 E)`` and ``(ln(J) C^-1, I - C^-1)``.  The foam's exponent
+    ``beta = lambda / (2 mu)`` depends on both, so with ``j = J^(-2 beta)``
+
+        dS/dlambda = ln(J) j C^-1,    dS/dmu = I - j (1 + 2 beta ln J) C^-1.
+    """
+    if law == "stvk":
+        E = green_lagrange(F)
+        return np.stack([np.trace(E, axis1=-2, axis2=-1)[..., None, None] * _I3, 2.0 * E])
+    check_law(law)
+    log_j, Ci = _log_j_and_cinv(F)
+    if law == "hyperfoam":
+        beta = _beta(lam, mu)
+        j = np.exp(-2.0 * beta * log_j)[..., None, None]
+        return np.stack([log_j[..., None, None] * j * Ci, _I3 - j * (1.0 + 2.0 * beta * log_j[..., None, None]) * Ci])
+    return np.stack([log_j[..., None, None] * Ci, _I3 - Ci])
 
 
 def energy_density(law: str, F, lam: float, mu: float) -> np.ndarray:

@@ -108,9 +108,8 @@ class RolloutDerivatives:
 
 def applicable_parameters(model: Model) -> tuple[str, ...]:
     """The parameters with a two-sided derivative: the gripper's stiffnesses only
-    for a compliant gripper, the density only if > 0, ``young`` and ``poisson``
-    for the St Venant-Kirchhoff hex8 only."""
-    out = list(PARAMETERS[:5]) if _lame_linear(model) else list(PARAMETERS[:3])
+    for a compliant gripper, the density only if > 0."""
+    out = list(PARAMETERS[:5])
     if model.material.density > 0:
         out.append("density")
     if not model.gripper.rigid:
@@ -156,16 +155,7 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
             raise ValueError(f"unknown parameter {p!r}; choose from {PARAMETERS}")
         if p.startswith("stiffness") and model.gripper.rigid:
             raise ValueError(f"{p} has no derivative with a rigid gripper (stiffness inf)")
-        if p in ("young", "poisson") and not _lame_linear(model):
-            raise ValueError(f"{p}: derivatives in the material constants are implemented for the St Venant-Kirchhoff "
-                             f"hex8 only, got material {model.material.model!r}, element {model.geometry.element!r}")
     return commands, parameters
-
-
-def _lame_linear(model: Model) -> bool:
-    """The internal forces are ``lambda a(U) + mu b(U)`` as :mod:`.sensitivity` assumes
-    for the material derivatives (St Venant-Kirchhoff on the plain hex8)."""
-    return getattr(model.material, "model", "stvk") == "stvk" and getattr(model.geometry, "element", "hex8") == "hex8"
 
 
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,

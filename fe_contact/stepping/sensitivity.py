@@ -27,23 +27,24 @@ also gives ``W``) and every input costs one forward and one backward
 substitution (:meth:`~fe_contact.stepping.tangent.Tangent.solve_with_contact`:
 the contact dofs are eliminated last).  The
 derivative of the upper-face force follows from ``K_pf dU_f + K_pp dU_p +
-d_p(f_int - f_ext)_p``.  Parameters enter through ``E``, ``nu`` (St
-Venant-Kirchhoff: ``f_int = lambda a(U) + mu b(U)``, linear in the Lame
-constants), ``rho`` (the dead load ``rho g V_a``), ``mu_x``, ``mu_y`` (slip
+d_p(f_int - f_ext)_p``.  Parameters enter through ``E``, ``nu`` (the
+forces' derivatives in the Lame moduli at fixed ``U``, any law of
+:mod:`fe_contact.fem.material` on the hex8 or the F-bar hex8), ``rho`` (the dead load ``rho g V_a``), ``mu_x``, ``mu_y`` (slip
 rule) and ``alpha`` (the frame ``T``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 
 from ..contact.friction import frame_derivative
 from ..contact.law_jacobian import law_jacobian
-from ..fem.elasticity import internal_force
+from ..fem.assembly import assemble_vector
+from ..fem.finite_strain import element_force_moduli_derivatives
 from ..fem.loads import body_force
 from .held import held_loading
 from .model import Model, NodeStatus
@@ -203,10 +204,7 @@ class HeldLinearisation:
     def parameter_force(self, d_params: np.ndarray) -> np.ndarray:
         """``d_p (f_int - f_ext)`` at fixed ``U`` (n_dofs, J), N per unit input.
 
-        St Venant-Kirchhoff forces are ``lambda a(U) + mu b(U)``: ``b`` is
-        twice the force of the material ``(E, nu) = (1, 0)`` (``lambda = 0``,
-        ``mu = 1/2``) and ``a`` follows from ``(1, 1/4)`` (``lambda = mu = 0.4``).
-        The dead load is ``rho g V_a``.
+        The material's by :meth:`_material_forces`; the dead load is ``rho g V_a``.
         """
         model = self.model
         out = np.zeros((model.mesh.n_dofs, d_params.shape[1]))
@@ -220,18 +218,21 @@ class HeldLinearisation:
 
 
     def _material_forces(self) -> tuple[np.ndarray, np.ndarray]:
-        """``d f_int / dE`` and ``d f_int / dnu`` at ``U`` (n_dofs,), N/Pa and N (computed once)."""
+        """``d f_int / dE`` and ``d f_int / dnu`` at ``U`` (n_dofs,), N/Pa and N (computed once):
+        the forces' derivatives in the Lame moduli at fixed ``U`` (any law, either element,
+        :func:`~fe_contact.fem.finite_strain.element_force_moduli_derivatives`) by the chain rule,
+        ``lambda = E nu / ((1 + nu)(1 - 2 nu))``, ``mu = E / (2 (1 + nu))``."""
         if getattr(self, "_material", None) is not None:
             return self._material
         model, mat = self.model, self.model.material
-        force = lambda young, nu: internal_force(model.geometry, model.mesh.elements, self.U,  # noqa: E731
-                                                 replace(mat, young=young, poisson=nu))[0]
-        b = 2.0 * force(1.0, 0.0)
-        a = (force(1.0, 0.25) - 0.4 * b) / 0.4
+        elements = model.mesh.elements
+        d = element_force_moduli_derivatives(model.geometry.grad, model.geometry.dvol, self.U[elements], mat.model,
+                                             mat.lame_lambda, mat.lame_mu, model.geometry.element == "fbar")
+        f_lam, f_mu = (assemble_vector(elements, x, model.mesh.n_nodes) for x in d)
         E, nu = mat.young, mat.poisson
         dlam_dnu = E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) ** 2 * (1.0 - 2.0 * nu) ** 2)
         dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
-        self._material = (mat.lame_lambda * a + mat.lame_mu * b) / E, dlam_dnu * a + dmu_dnu * b
+        self._material = (mat.lame_lambda * f_lam + mat.lame_mu * f_mu) / E, dlam_dnu * f_lam + dmu_dnu * f_mu
         return self._material
 
 

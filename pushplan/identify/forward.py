@@ -62,8 +62,7 @@ class FePredictor:
         Predict with the rollouts' exact derivatives (:func:`fe_contact.rollout_derivatives`),
         kept for :meth:`jacobian` at the same ``theta``; False: plain rollouts
         (the Jacobian by finite differences).  Observations with release
-        steps, and ``young`` for a law or element other than the St
-        Venant-Kirchhoff hex8, are always predicted plainly.
+        steps are always predicted plainly.
     """
 
     def __init__(self, scenario: Scenario, obs: Observations, names, elements=None, quadrature=None,
@@ -71,7 +70,7 @@ class FePredictor:
         self.scenario, self.obs, self.names = scenario, obs, tuple(names)
         self.elements, self.quadrature = elements, quadrature
         self.exact = exact and not any(c.open > 0 for o in as_files(obs) for c in o.commands)
-        if self.exact and "young" in self.names:  # material derivatives: St Venant-Kirchhoff hex8 only
+        if self.exact and "young" in self.names:  # material derivatives: every law and element of fe_contact
             self.exact = "young" in applicable_parameters(scenario.model(elements, quadrature))
         self.count = 0
         self.wall_time = 0.0
