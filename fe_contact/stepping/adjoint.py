@@ -10,7 +10,14 @@ costs one forward and one backward substitution per input and step, so
 backwards through the steps at two solves per step, ``O(K)``, whatever the
 number of inputs.  It keeps every step's linearisation (factorised tangent and
 flexibility matrix) until the backward pass: memory grows with the steps.
-Rigid drive only.
+
+The compliant gripper's plate balance ``(dF/dp + diag k) dp = k dc + (c - p)
+dk - dF/d(input)`` (:mod:`~fe_contact.stepping.derivatives`) is transposed
+too: with ``mu`` the weights of ``dp`` (the plate's outputs and what ``dp``
+moves, the three plate directions of the held step, solved forward once per
+step), ``nu = (dF/dp + diag k)^-T mu`` weighs ``k dc`` (the commands),
+``(c - p) dk`` (the stiffnesses) and ``-dF/d(input)`` (through the transposed
+plate wrench, :func:`~fe_contact.stepping.sensitivity.plate_wrench_adjoint`).
 """
 
 from __future__ import annotations
@@ -22,7 +29,8 @@ import numpy as np
 from .derivatives import OUTPUTS, PARAMETERS, _check, _report_outputs
 from .model import Model, State, Status, TangentCache, initial_state
 from .predictor import commanded_pose
-from .sensitivity import HeldLinearisation, lower_pose_derivative, upper_pose_jacobian
+from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_adjoint, plate_wrench_derivative,
+                          upper_pose_jacobian)
 from .step import step
 
 
@@ -64,12 +72,10 @@ def rollout_gradient(model: Model, commands, weights, state: State | None = None
     Raises
     ------
     ValueError
-        As :func:`~fe_contact.stepping.derivatives.rollout_derivatives`, a
-        compliant gripper, or weights of the wrong shape.
+        As :func:`~fe_contact.stepping.derivatives.rollout_derivatives`, or
+        weights of the wrong shape.
     """
     commands, parameters = _check(model, commands, parameters)
-    if not model.gripper.rigid:
-        raise ValueError("rollout_gradient: the adjoint of the compliant gripper's plate balance is not implemented")
     K = len(commands)
     g = np.asarray(weights, dtype=float)
     if g.shape != (K, len(OUTPUTS)) or not np.all(np.isfinite(g)):
@@ -87,7 +93,8 @@ def rollout_gradient(model: Model, commands, weights, state: State | None = None
             message = report.message if lin is None else lin.failure
             return RolloutGradient(status, f"step {k + 1}: {message}", outputs[:k], float("nan"),
                                    np.zeros((K, 4)), np.zeros(len(parameters)), parameters)
-        steps.append((lin, commanded_pose(state, command)[1]))
+        steps.append((lin, commanded_pose(state, command)[1]) if model.gripper.rigid
+                     else _plate_balance(model, state, command, report, lin))
         state = replace(new_state, tangent=TangentCache(lin.tangent))
         outputs[k] = _report_outputs(report, state)
     d_commands, lam_params = _backward(model, steps, g)
@@ -105,18 +112,54 @@ def _backward(model: Model, steps, g: np.ndarray):
     lam_U, lam_pose = np.zeros(n_dofs), np.zeros(4)
     lam_params, d_commands = np.zeros(len(PARAMETERS)), np.zeros((K, 4))
     for k in range(K - 1, -1, -1):
-        lin, rotation = steps[k]
+        lin = steps[k][0]
         pose_map = lower_pose_derivative(model, lin.U, basis)  # (3, 2 n_lower)
         lam_U = lam_U.copy()
         lam_U[lower_xy] += g[k, :3] @ pose_map
         lam_force = np.tile(g[k, 3:6], (model.mesh.upper.size, 1))
-        lam_start, lam_upper, lam_step = lin.solve_adjoint(lam_U, lam_force)
-        lam_pose = lam_pose + upper_pose_jacobian(model, rotation).T @ lam_upper
-        lam_pose[[0, 1, 3]] += g[k, 6:9]  # the plate of a rigid drive is the commanded pose
+        if model.gripper.rigid:
+            lam_start, lam_upper, lam_step = lin.solve_adjoint(lam_U, lam_force)
+            lam_pose = lam_pose + upper_pose_jacobian(model, steps[k][1]).T @ lam_upper
+            lam_pose[[0, 1, 3]] += g[k, 6:9]  # the plate of a rigid drive is the commanded pose
+        else:
+            lam_start, lam_c, lam_step, lam_params[6:] = _plate_balance_adjoint(model, steps[k], lam_U, lam_force,
+                                                                                g[k, 6:9], lam_params[6:])
+            lam_pose = lam_pose + lam_c
         lam_params[:6] += lam_step
         d_commands[k] = lam_pose  # d pose_k / d command_j = I for j <= k
         lam_U = lam_start
     return d_commands, lam_params
+
+
+def _plate_balance(model: Model, state: State, command, report, lin: HeldLinearisation):
+    """What the backward pass needs of a compliant-gripper step: the held step's
+    response to the three plate directions (displacements, upper-face forces),
+    the balance matrix ``A = dF/dp + diag k`` and ``c - p``."""
+    translation, rotation = commanded_pose(state, command)
+    p = np.array(report.plate)
+    Jp = upper_pose_jacobian(model, float(p[2]))
+    n = model.mesh.n_dofs
+    held = lin.solve(np.zeros((n, 3)), Jp[:, [0, 1, 3]], np.zeros((6, 3)))
+    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
+    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
+    c = np.array([translation[0], translation[1], rotation])
+    return lin, Jp, held, np.linalg.inv(dF + np.diag(model.gripper.stiffness)), c - p, f_upper
+
+
+def _plate_balance_adjoint(model: Model, step, lam_U, lam_force, lam_plate, lam_stiffness):
+    """The transpose of a compliant step's derivatives (module docstring):
+    weights of the start displacements, of the commanded pose (4,), of the
+    held step's parameters (6,) and the gripper's stiffnesses (2,) updated."""
+    lin, Jp, held, A_inv, c_p, f_upper = step
+    mu = held.displacement.T @ lam_U + np.einsum("nik,ni->k", held.upper_force, lam_force) + lam_plate
+    nu = A_inv.T @ mu
+    w_U, w_force = plate_wrench_adjoint(model, lin.U, f_upper, nu)
+    lam_start, lam_upper, lam_step = lin.solve_adjoint(lam_U - w_U, lam_force - w_force)
+    lam_c = np.zeros(4)
+    lam_c[2] = Jp[:, 2] @ lam_upper  # the plate's height is commanded
+    lam_c[[0, 1, 3]] = model.gripper.stiffness * nu  # k dc
+    lam_stiffness = lam_stiffness + np.array([nu[0] * c_p[0] + nu[1] * c_p[1], nu[2] * c_p[2]])
+    return lam_start, lam_c, lam_step, lam_stiffness
 
 
 __all__ = ["RolloutGradient", "rollout_gradient"]

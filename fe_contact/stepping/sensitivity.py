@@ -266,6 +266,23 @@ def plate_wrench_derivative(model: Model, U: np.ndarray, f_upper: np.ndarray, dU
     return np.vstack([df_upper[:, 0].sum(axis=0), df_upper[:, 1].sum(axis=0), d_moment])
 
 
+def plate_wrench_adjoint(model: Model, U: np.ndarray, f_upper: np.ndarray, weights: np.ndarray):
+    """The transpose of :func:`plate_wrench_derivative`: for the weights (3,) of
+    ``(dF_x, dF_y, dM_z)``, the weights of ``dU`` (n_dofs,) and of ``df_upper``
+    (n_upper, 3).  ``M_z = sum (x - x_bar) f_y - (y - y_bar) f_x`` over the upper face."""
+    upper = model.mesh.upper
+    x = (model.mesh.nodes + U)[upper, :2]
+    rel = x - x.mean(axis=0)
+    f = f_upper - f_upper.mean(axis=0)  # sum d_rel f = sum d_x (f - f_bar)
+    w_force = np.zeros((upper.size, 3))
+    w_force[:, 0] = weights[0] - weights[2] * rel[:, 1]
+    w_force[:, 1] = weights[1] + weights[2] * rel[:, 0]
+    w_U = np.zeros((model.mesh.n_nodes, 3))
+    w_U[upper, 0] = weights[2] * f[:, 1]
+    w_U[upper, 1] = -weights[2] * f[:, 0]
+    return w_U.ravel(), w_force
+
+
 def lower_pose_derivative(model: Model, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
     """Derivative (3, J) of the lower face's pose ``(x, y, yaw)``: the
     area-weighted centroid displacement and the best-fit yaw
