@@ -213,9 +213,3 @@ def test_steel_rectangular_block_with_27_gauss_points():
               options=TIGHT, quadrature=3)
     cmds = [Command(dz=-1e-5), Command(dx=2e-5, dy=2e-5), Command(dx=2e-5, dy=2e-5)]
     assert_agrees(check_derivatives(m, cmds, parameters=("mu_x", "mu_y", "angle"), rel_step=1e-4))
-
-
-def test_a_frictional_pad_is_refused():
-    from dataclasses import replace as changed
-    with pytest.raises(ValueError, match="frictional pad"):
-        rollout_derivatives(changed(model(), pad=Friction(0.5, 0.5)), [PRESS])

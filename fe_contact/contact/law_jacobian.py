@@ -46,8 +46,8 @@ def law_jacobian(separated: np.ndarray, slip: np.ndarray, r: np.ndarray, u_t: np
         Converged local forces ``(r_n, r_tx, r_ty)``, N.
     u_t : ndarray, shape (n, 2)
         Tangential displacement increments of the step in ``(t_x, t_y)``, m.
-    mu_x, mu_y : float
-        Friction coefficients.
+    mu_x, mu_y : float or ndarray, shape (n,)
+        Friction coefficients (one per contact: each body its own cone).
 
     Returns
     -------
@@ -68,14 +68,14 @@ def law_jacobian(separated: np.ndarray, slip: np.ndarray, r: np.ndarray, u_t: np
     B[stick] = eye
     if not slip.any():
         return A, B, B_mu
-    m = np.array([mu_x, mu_y])
+    m = np.broadcast_to(np.stack(np.broadcast_arrays(mu_x, mu_y), axis=-1), (n, 2))[slip]  # (k, 2)
     u = u_t[slip]
     v = m * u  # M u_t (k, 2)
     nv = np.linalg.norm(v, axis=1)
     nv = np.where(nv > 0, nv, 1.0)
     s = m * v / nv[:, None]  # M^2 u_t / ||M u_t||
     P = np.eye(2) - np.einsum("ki,kj->kij", v, v) / (nv**2)[:, None, None]
-    ds_du = m[None, :, None] * P * m[None, None, :] / nv[:, None, None]
+    ds_du = m[:, :, None] * P * m[:, None, :] / nv[:, None, None]
     # ds_i/dmu_j = delta_ij 2 mu_j u_j / |v| - s_i mu_j u_j^2 / |v|^2
     ds_dmu = (np.eye(2) * (2.0 * m * u / nv[:, None])[:, None, :]
               - s[:, :, None] * (m * u**2 / (nv**2)[:, None])[:, None, :])

@@ -50,6 +50,7 @@ from .model import Command, Friction, Model, State, Status, StepReport, TangentC
 from .release import Release
 from .predictor import commanded_pose
 from .sequence import StepSequence
+from .pad_sensitivity import PadLinearisation
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
 
 COMPONENTS = ("dx", "dy", "dz", "dtheta")
@@ -141,8 +142,9 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
     if release is not None and (not isinstance(release, Release) or release.mode != "lift"):
         raise ValueError(f"release must be a Release of mode 'lift' (an open release is not differentiated), "
                          f"got {release!r}")
-    if getattr(model, "pad", None) is not None:
-        raise ValueError("derivatives with a frictional pad on the upper face are not implemented (pad=None: bonded)")
+    if model.pad is not None and release is not None:
+        raise ValueError("the release of a frictional pad is not differentiated (its steps are refined by step "
+                         "doubling inside the release; pad=None: a bonded lift is)")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -298,6 +300,8 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
         return report.status, f"step {state.step_index + 1}: {report.message}"
     translation, rotation = commanded_pose(state, report.command)
     d_pose = d_state.pose + d_command
+    if model.pad is not None:
+        return _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation)
     lin = HeldLinearisation(model, state.displacement, report.displacement, report.reaction_local,
                             report.node_status)
     if lin.failure:
@@ -314,6 +318,22 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
     outputs = _report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
     return new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
+
+
+def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation):
+    """:func:`_step_derivative` of a step with a frictional pad
+    (:class:`~fe_contact.stepping.pad_sensitivity.PadLinearisation`)."""
+    if "in parts" in report.message:  # the halves' intermediate state is not kept
+        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1} was taken in halves ({report.message}): "
+                                         "its derivative through them is not available")
+    lin = PadLinearisation(model, state, report.displacement, np.vstack([report.reaction_local, report.pad_reaction]),
+                           translation, rotation)
+    if lin.failure:
+        return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
+    held = lin.solve_pad(d_state.displacement, d_state.pose, d_pose, seeds[:6])
+    dU, d_plate = held.displacement, d_pose[[0, 1, 3]]
+    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
+    return new_state, StateDerivative(dU, d_pose, d_plate), _report_outputs(report, new_state), d_out
 
 
 def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):

@@ -1,0 +1,80 @@
+"""Exact derivatives of pushes with a frictional pad on the upper face (issue 30
+item 1b): floor and pad contacts stacked, each in its own frame with its own
+friction, the whole linearised step solved at once (the free block's stiffness
+is singular alone), against central differences; the check fails when the pad's
+own friction or its rotation is dropped."""
+
+import numpy as np
+import pytest
+
+import fe_contact.stepping.pad_sensitivity as pad_sensitivity
+from fe_contact import Command, Friction, Material, Model, NodeStatus, SolverOptions, block_mesh
+from fe_contact.stepping.derivatives import check_derivatives, rollout_derivatives
+from fe_contact.stepping.release import Release
+
+REL_TOL = 1e-6
+DROPPED_TERM_ERROR = 1e-3
+REL_STEP = 1e-4
+"""Central differences' step (at 1e-5 their noise on the entries that vanish by symmetry, 1e-13 m, over
+the step gives 6e-6; at 1e-4: 7e-7)."""
+TIGHT = SolverOptions(newton_tol=1e-13, local_tol=1e-14)
+SIZE = (0.02, 0.02, 0.01)
+PUSH = [Command(dz=-2e-4), Command(dx=2e-4, dy=1e-4, dtheta=0.01), Command(dx=-1e-4, dy=2e-4)]
+
+
+def model(pad_mu):
+    return Model(block_mesh(SIZE, (2, 2, 1)), Material(2e6, 0.3, 800.0), Friction(0.3, 0.15, 0.4), options=TIGHT,
+                 pad=Friction(pad_mu, 0.8 * pad_mu, 0.3))
+
+
+def pad_statuses(monkeypatch, m, commands):
+    seen, original = [], pad_sensitivity.PadLinearisation.__init__
+
+    def recording(self, *args):
+        original(self, *args)
+        seen.append(np.bincount(self.node_status[m.n_lower:], minlength=3))
+
+    monkeypatch.setattr(pad_sensitivity.PadLinearisation, "__init__", recording)
+    rollout_derivatives(m, commands)
+    monkeypatch.undo()
+    return seen
+
+
+@pytest.mark.parametrize("pad_mu, pad_slips", [(2.0, False), (0.15, True)])
+def test_push_with_a_frictional_pad(monkeypatch, pad_mu, pad_slips):
+    m = model(pad_mu)
+    last = pad_statuses(monkeypatch, m, PUSH)[-1]
+    assert (last[NodeStatus.SLIP] == m.mesh.upper.size) == pad_slips, last
+    check = check_derivatives(m, PUSH, rel_step=REL_STEP)
+    assert check.max_error <= REL_TOL, check.worst()
+
+
+def test_dropping_the_pads_own_friction_fails(monkeypatch):
+    m = model(0.15)
+    original = pad_sensitivity.law_jacobian
+
+    def floor_friction_everywhere(separated, slip, r, u_t, mu_x, mu_y):
+        return original(separated, slip, r, u_t, mu_x[0], mu_y[0])
+
+    monkeypatch.setattr(pad_sensitivity, "law_jacobian", floor_friction_everywhere)
+    assert check_derivatives(m, PUSH, rel_step=REL_STEP, parameters=()).max_error > DROPPED_TERM_ERROR
+
+
+def test_dropping_the_pads_rotation_fails(monkeypatch):
+    # the pad's motion at a node turns with the command's dtheta about the pad's centre
+    m = model(2.0)
+    original = pad_sensitivity.PadLinearisation._kinematics_derivative
+
+    def without_turn(self, d_start, d_pose_start, d_pose):
+        d_pose, d_pose_start = d_pose.copy(), d_pose_start.copy()
+        d_pose[3] = d_pose_start[3] = 0.0
+        return original(self, d_start, d_pose_start, d_pose)
+
+    monkeypatch.setattr(pad_sensitivity.PadLinearisation, "_kinematics_derivative", without_turn)
+    check = check_derivatives(m, PUSH, rel_step=REL_STEP, parameters=())
+    assert check.error[:, check.inputs.index("dtheta[1]")].max() > DROPPED_TERM_ERROR
+
+
+def test_the_release_of_a_pad_is_refused():
+    with pytest.raises(ValueError, match="release of a frictional pad"):
+        rollout_derivatives(model(2.0), PUSH, release=Release("lift", 3))
