@@ -139,9 +139,10 @@ def with_parameters(model: Model, **values) -> Model:
 def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
     if not isinstance(model, Model):
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
-    if release is not None and (not isinstance(release, Release) or release.mode != "lift"):
-        raise ValueError(f"release must be a Release of mode 'lift' (an open release is not differentiated), "
-                         f"got {release!r}")
+    if release is not None and (not isinstance(release, Release) or release.mode != "lift"
+                                or any(getattr(release, "away", (0.0, 0.0)))):
+        raise ValueError(f"release must be a Release of mode 'lift' straight up (an open release, or a retreat "
+                         f"away, is not differentiated), got {release!r}")
     if model.pad is not None and release is not None:
         raise ValueError("the release of a frictional pad is not differentiated (its steps are refined by step "
                          "doubling inside the release; pad=None: a bonded lift is)")
@@ -189,14 +190,14 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     K, n_par = len(commands), len(parameters)
-    J = 4 * K + n_par + 1  # the last column: the height of the current release step
+    J = 4 * K + n_par + (release is not None)  # with a release, the last column: the current release step's height
     seeds = np.zeros((len(PARAMETERS), J))  # d parameter / d input
     for j, p in enumerate(parameters):
         seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
     d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
     if start is not None:
         for name in ("displacement", "pose", "plate"):
-            getattr(d_state, name)[:, 4 * K:J - 1] = getattr(start.parameter_state, name)
+            getattr(d_state, name)[:, 4 * K:4 * K + n_par] = getattr(start.parameter_state, name)
     rows = K + (release is not None)
     outputs, d_out, reports = np.zeros((rows, 9)), np.zeros((rows, 9, J)), []
     status, message = Status.CONVERGED, ""
@@ -227,9 +228,9 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     n = min(len(reports), K) if status is not Status.CONVERGED else rows
     if release is not None and status is Status.CONVERGED:
         d_state = _put_down_root(model, sequence.schedule, d_state, d_out[-1])
-    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:J - 1] for k in ("displacement", "pose", "plate")))
+    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:4 * K + n_par] for k in ("displacement", "pose", "plate")))
     return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
-                              d_out[:n, :, 4 * K:J - 1], parameters, state, tuple(reports), time.perf_counter() - t0,
+                              d_out[:n, :, 4 * K:4 * K + n_par], parameters, state, tuple(reports), time.perf_counter() - t0,
                               tail)
 
 
