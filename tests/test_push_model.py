@@ -113,8 +113,18 @@ def test_the_documented_example_runs():
     exec(compile(block, "docs/derivatives.md", "exec"), {})
 
 
-def test_a_frictional_pad_is_refused_in_one_line():
+def test_a_frictional_pad_has_exact_jacobians_too():
+    # the pad's pushes are differentiated like the bonded ones (fe_contact.stepping.pad_sensitivity)
     import tomllib
     text = SCENARIO.replace("[solver]", "[gripper]\nfriction = 0.5\n[solver]")
-    with pytest.raises(InputError, match="gripper.friction: a frictional pad has no derivatives"):
-        PushModel.from_scenario(parse_scenario(tomllib.loads(text)))
+    push = PushModel.from_scenario(parse_scenario(tomllib.loads(text)))
+    commands = 0.3 * COMMANDS
+    jac = push.rollout_with_jacobian(commands)
+    fd = np.zeros_like(jac.d_commands)
+    for j in range(2):
+        for c, h in enumerate((1e-8, 1e-8, 1e-7)):
+            up, um = commands.copy(), commands.copy()
+            up[j, c] += h
+            um[j, c] -= h
+            fd[:, :, j, c] = (push.rollout(up) - push.rollout(um)) / (2 * h)
+    assert np.abs(fd - jac.d_commands).max() <= REL_TOL * np.abs(fd).max()

@@ -99,12 +99,9 @@ class PushModel:
         Raises
         ------
         InputError
-            A bad scenario value, a press that is not one, an unknown parameter, or a
-            frictional pad.
+            A bad scenario value, a press that is not one, or an unknown parameter.
         """
         model = scenario.model(elements)
-        if model.pad is not None:
-            raise InputError("gripper.friction: a frictional pad has no derivatives yet; use the bonded pad")
         for p in parameters or ():
             if p not in applicable_parameters(model):
                 raise InputError(f"parameters: {p!r} has no derivative here; choose from "
