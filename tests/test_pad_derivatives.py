@@ -1,8 +1,8 @@
-"""Exact derivatives of pushes with a frictional pad on the upper face (issue 30
-item 1b): floor and pad contacts stacked, each in its own frame with its own
-friction, the whole linearised step solved at once (the free block's stiffness
-is singular alone), against central differences; the check fails when the pad's
-own friction or its rotation is dropped."""
+"""Exact derivatives of pushes with a frictional pad on the upper face and of the
+rest after its release (issue 30 item 1b): floor and pad contacts stacked, each in
+its own frame with its own friction, the whole linearised step solved at once (the
+free block's stiffness is singular alone), against central differences; the check
+fails when the pad's own friction, its rotation or the lift's heights are dropped."""
 
 import numpy as np
 import pytest
@@ -75,6 +75,34 @@ def test_dropping_the_pads_rotation_fails(monkeypatch):
     assert check.error[:, check.inputs.index("dtheta[1]")].max() > DROPPED_TERM_ERROR
 
 
-def test_the_release_of_a_pad_is_refused():
-    with pytest.raises(ValueError, match="release of a frictional pad"):
-        rollout_derivatives(model(2.0), PUSH, release=Release("lift", 3))
+RELEASE = Release("lift", 3, error_tol=0.3)
+"""A coarse error control keeps the check fast; each release step is still taken in parts."""
+LIFT_PUSH = PUSH[:2]
+
+
+def test_rest_after_the_release_of_a_sticking_pad():
+    # the pad's lift: its heights as the schedule chose them (secants of the pad load), each step
+    # through the parts its error control kept
+    m = model(2.0)
+    result = rollout_derivatives(m, LIFT_PUSH, release=RELEASE)
+    assert any("error control" in r.message for r in result.reports)
+    assert np.abs(result.reports[-1].pad_reaction).max() <= 1e-12 * m.weight  # let go
+    check = check_derivatives(m, LIFT_PUSH, release=RELEASE, rel_step=REL_STEP, parameters=("mu_x", "density"))
+    assert check.max_error <= REL_TOL, check.worst()
+
+
+def test_rest_after_the_release_of_a_sliding_pad():
+    # the pad slides over the block as its load falls and its contacts open one by one: the
+    # path crosses contact events, and the check holds to 7e-5 (measured 6.9e-5 with error_tol
+    # 0.3 and 0.5, 1.5e-5 with 0.2, the same at steps 1e-3 to 1e-5), not 1e-6
+    m = model(0.15)
+    check = check_derivatives(m, LIFT_PUSH, release=RELEASE, rel_step=REL_STEP, parameters=("mu_x", "density"))
+    assert check.max_error <= 1e-4, check.worst()
+
+
+def test_dropping_the_pad_lifts_heights_fails(monkeypatch):
+    import fe_contact.stepping.release as release
+    original = release.pad_lift_rise
+    monkeypatch.setattr(release, "pad_lift_rise", lambda *args: (original(*args)[0], {}))
+    check = check_derivatives(model(0.15), LIFT_PUSH, release=RELEASE, rel_step=REL_STEP, parameters=())
+    assert check.max_error > DROPPED_TERM_ERROR

@@ -72,7 +72,7 @@ def test_the_root_condition_sets_the_last_height(monkeypatch):
     # the put-down's last height is the root of F_z: whatever the regula falsi's own derivative of
     # its last target, the implicit function theorem replaces it; without the root, it is off
     m = model()
-    original, calls = derivatives._release_height_derivative, []
+    original, calls = derivatives.release_height_derivative, []
 
     def wrong_last(*args):
         calls.append(1)
@@ -80,10 +80,10 @@ def test_the_root_condition_sets_the_last_height(monkeypatch):
         return 0.0 * out if len(calls) == n else out
 
     n = len(rollout_derivatives(m, PUSH, release=LIFT).reports) - len(PUSH)
-    monkeypatch.setattr(derivatives, "_release_height_derivative", wrong_last)
+    monkeypatch.setattr(derivatives, "release_height_derivative", wrong_last)
     assert_agrees(check_derivatives(m, PUSH, release=LIFT, rel_step=REL_STEP))
     calls.clear()
-    monkeypatch.setattr(derivatives, "_put_down_root", lambda model, schedule, d_state, d_rest: d_state)
+    monkeypatch.setattr(derivatives, "put_down_root", lambda schedule, d_rest, force_z, d_state: d_state)
     assert check_derivatives(m, PUSH, release=LIFT, rel_step=REL_STEP).max_error > DROPPED_TERM_ERROR
 
 

@@ -28,7 +28,7 @@ the release.  Its steps are held steps whose heights the release schedule
 chose (:class:`~fe_contact.stepping.release.ReleaseSchedule`): each height is
 differentiated as the schedule computed it (a lift step ``h + d / n``, ``d``
 the press depth; a put-down target of
-:func:`~fe_contact.stepping.release.put_down_target`, a function of the
+:func:`~fe_contact.stepping.release_path.put_down_target`, a function of the
 heights and forces met, of the weight and of ``E A / H``), and the last one,
 the put-down's root ``h*`` where the plate carries nothing, by the implicit
 function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
@@ -48,7 +48,10 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .release import Release
+from .step import step
+from .release_derivatives import RecordingSequence, put_down_root, release_height_derivative
 from .predictor import commanded_pose
+from .adaptive import half_command
 from .sequence import StepSequence
 from .pad_sensitivity import PadLinearisation
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
@@ -143,9 +146,6 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
                                 or any(getattr(release, "away", (0.0, 0.0)))):
         raise ValueError(f"release must be a Release of mode 'lift' straight up (an open release, or a retreat "
                          f"away, is not differentiated), got {release!r}")
-    if model.pad is not None and release is not None:
-        raise ValueError("the release of a frictional pad is not differentiated (its steps are refined by step "
-                         "doubling inside the release; pad=None: a bonded lift is)")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -201,21 +201,12 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     rows = K + (release is not None)
     outputs, d_out, reports = np.zeros((rows, 9)), np.zeros((rows, 9, J)), []
     status, message = Status.CONVERGED, ""
-    sequence = StepSequence(model, commands, state, release=release, consume_start=False)
-    path = []  # (d height, d F_z) of each release step
+    sequence = RecordingSequence(model, commands, state, release=release, consume_start=False)
+    path = []  # (d height, d F_z) of the release's start, then of each release step
     for k, (new_state, report) in enumerate(sequence):
-        d_command = np.zeros((4, J))
-        if k < K:
-            d_command[:, 4 * k:4 * k + 4] = np.eye(4)
-        else:  # a release step: its height as the schedule chose it; the last column is its own
-            if k == K:
-                d_depth = d_state.pose[2].copy()  # the press depth is -t_z at the release's start
-            d_command[2] = _release_height_derivative(model, sequence.schedule, seeds, d_state.pose[2], d_depth,
-                                                      path) - d_state.pose[2]
-            d_command[2, -1] = 1.0
-            for name in ("displacement", "pose", "plate"):
-                getattr(d_state, name)[:, -1] = 0.0
-        result = _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
+        if k == K:
+            path.append((d_state.pose[2].copy(), d_out[K - 1, OUTPUTS.index("force_z")].copy()))
+        result = _sequence_step(model, sequence, k, K, state, new_state, report, d_state, seeds, path)
         if isinstance(result[0], Status):
             status, message = result
             break
@@ -227,59 +218,68 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
             path.append((d_state.pose[2], d_row[OUTPUTS.index("force_z")]))
     n = min(len(reports), K) if status is not Status.CONVERGED else rows
     if release is not None and status is Status.CONVERGED:
-        d_state = _put_down_root(model, sequence.schedule, d_state, d_out[-1])
+        d_state = StateDerivative(*put_down_root(sequence.schedule, d_out[-1], OUTPUTS.index("force_z"),
+                                                 (d_state.displacement, d_state.pose, d_state.plate)))
     tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:4 * K + n_par] for k in ("displacement", "pose", "plate")))
     return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
                               d_out[:n, :, 4 * K:4 * K + n_par], parameters, state, tuple(reports), time.perf_counter() - t0,
                               tail)
 
 
-def _release_height_derivative(model: Model, schedule, seeds: np.ndarray, d_current: np.ndarray,
-                               d_depth: np.ndarray, path: list) -> np.ndarray:
-    """Derivative (J,) of the height the release's last command goes to.
+def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, seeds, path):
+    """:func:`_step_derivative` of the ``k``-th step of ``sequence`` (a command's
+    for ``k < K``, else a release step's), through the parts it was taken in:
+    the halves of a frictional pad's step that failed whole, the parts a release
+    step's error control kept; a part of a fraction ``f`` of the whole command
+    moves with ``f`` times its derivative."""
+    J = seeds.shape[1]
+    d_whole = np.zeros((4, J))
+    if k < K:
+        d_whole[:, 4 * k:4 * k + 4] = np.eye(4)
+        parts = _whole_steps(model, [(state, new_state, report)])
+        sequence.taken = []
+    else:  # a release step: its height as the schedule chose it; the last column is its own
+        d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
+                                               seeds[PARAMETERS.index("young")], seeds[PARAMETERS.index("density")])
+        d_whole[2] -= d_state.pose[2]
+        d_whole[2, -1] = 1.0
+        for name in ("displacement", "pose", "plate"):
+            getattr(d_state, name)[:, -1] = 0.0
+        parts = _whole_steps(model, sequence.parts(new_state))
+    if not parts:
+        return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: the parts it was taken in were not found"
+    size = np.abs([report.command.dx, report.command.dy, report.command.dz, report.command.dtheta])
+    c = int(np.argmax(size))
+    for start, end, part in parts:
+        fraction = 1.0 if size[c] == 0 else [part.command.dx, part.command.dy, part.command.dz,
+                                             part.command.dtheta][c] / [report.command.dx, report.command.dy,
+                                                                        report.command.dz, report.command.dtheta][c]
+        result = _step_derivative(model, start, end, part, d_state, fraction * d_whole, seeds)
+        if isinstance(result[0], Status):
+            return result
+        d_state = result[1]
+    if len(parts) == 1 and parts[0][1] is new_state:
+        return result
+    return new_state, d_state, result[2], result[3]
 
-    The schedule says how it chose that height
-    (``ReleaseSchedule.height_partials``): a lift step ``h + d / steps``
-    (``d`` the press depth, derivative ``d_depth``), an absolute height, or a
-    put-down's target, a function of the put-down's points (plate height and
-    vertical force; ``path`` holds their derivatives, one ``(d_h, d_F)`` per
-    release step so far), of the weight ``W = rho g V`` and of the column's
-    stiffness ``k = E A / H`` (:func:`~fe_contact.stepping.release.put_down_target`).
-    The last height is then replaced by the root (:func:`_put_down_root`).
-    """
-    out = np.zeros(seeds.shape[1])
-    points = getattr(schedule, "contact_points", [])
-    first = len(path) - len(points)  # the put-down's points are the last steps' (the current one excepted)
-    for key, c in schedule.height_partials.items():
-        if key == "current":
-            out += c * d_current
-        elif key == "depth":
-            out -= c * d_depth
-        elif key == "weight":
-            out += c * model.weight / model.material.density * seeds[PARAMETERS.index("density")]
-        elif key == "stiffness":
-            out += c * schedule.axial_stiffness / model.material.young * seeds[PARAMETERS.index("young")]
-        else:
-            kind, i = key
-            out += c * path[first + i][0 if kind == "h" else 1]
-    return out
 
-
-def _put_down_root(model: Model, schedule, d_state: "StateDerivative", d_rest: np.ndarray) -> "StateDerivative":
-    """The root condition of a put-down (:meth:`~fe_contact.stepping.release.ReleaseSchedule._put_down`):
-    the last height ``h*`` is where the plate's vertical force vanishes,
-    ``g(h*, p) = F_z = 0``, so ``dh*/dp = -g_p / g_h`` (implicit function
-    theorem; ``g_h`` the last column, the last step's own height) and every
-    derivative gains ``d/dh dh*/dp``.  ``d_rest`` (9, J) is corrected in place;
-    returns the corrected state derivative.  Nothing to do when the block was
-    not put down (no weight: it ends in the air at the release's height)."""
-    if not (schedule.lifted_off and schedule.contact_points):
-        return d_state
-    g = d_rest[OUTPUTS.index("force_z")]
-    dh = -g / g[-1]
-    dh[-1] = 0.0
-    d_rest += np.outer(d_rest[:, -1], dh)
-    return StateDerivative(*(x + np.outer(x[:, -1], dh) for x in (d_state.displacement, d_state.pose, d_state.plate)))
+def _whole_steps(model, parts):
+    """``parts`` (start, state, report) with every step that a frictional pad
+    took in halves (:func:`~fe_contact.stepping.step.step`, its whole command
+    having failed) replaced by its halves, taken again (the same steps), or
+    None if one does not converge."""
+    out = []
+    for start, end, report in parts or []:
+        if "half steps" not in report.message:
+            out.append((start, end, report))
+            continue
+        half = half_command(report.command)
+        middle, first = step(model, start, half)
+        finish, second = step(model, middle, half)
+        if not (first.converged and second.converged):
+            return None
+        out += _whole_steps(model, [(start, middle, first), (middle, finish, second)]) or [None]
+    return None if None in out else out
 
 
 @dataclass(frozen=True)
@@ -324,7 +324,7 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
 def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation):
     """:func:`_step_derivative` of a step with a frictional pad
     (:class:`~fe_contact.stepping.pad_sensitivity.PadLinearisation`)."""
-    if "in parts" in report.message:  # the halves' intermediate state is not kept
+    if "half steps" in report.message:  # split where the whole step failed: the halves' middle is not kept
         return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1} was taken in halves ({report.message}): "
                                          "its derivative through them is not available")
     lin = PadLinearisation(model, state, report.displacement, np.vstack([report.reaction_local, report.pad_reaction]),

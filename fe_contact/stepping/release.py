@@ -55,6 +55,7 @@ import numpy as np
 from ..fem.elasticity import internal_force
 from ..fem.loads import Loading
 from .adaptive import controlled_step
+from .release_path import pad_lift_rise, put_down_target
 from .held import next_state
 from .measure import measure
 from .model import Command, Model, State, StepReport
@@ -233,20 +234,15 @@ class ReleaseSchedule:
             if self.lifted_off:
                 return self._rise(state)
             self.lifted_off = True
+            self.height_partials = {"current": 1.0}
             return Command()
         self.pad_points.append((h, load))
-        slope = self.loaded_pad / self.depth  # -dN/dh of the press, N/m
-        if len(self.pad_points) >= 2:
-            (h1, n1), (h2, n2) = self.pad_points[-2:]
-            if h2 != h1 and (n1 - n2) / (h2 - h1) > 0:
-                slope = (n1 - n2) / (h2 - h1)
-        steps, n0 = self.release.steps, self.loaded_pad
-        floor = min(0.5, GRIP_FLOOR * self.weight / n0)
-        if load <= floor * n0 * (1 + 1e-9):
-            return Command(dz=2.0 * load / slope)  # past the zero: every pad contact opens
-        q = floor ** (1.0 / max(steps - 1, 1))
-        target = max(load - n0 / steps, q * load, floor * n0)
-        return Command(dz=(load - target) / slope)
+        dz, partials = pad_lift_rise(self.pad_points, self.loaded_pad, self.depth, self.weight, self.release.steps,
+                                     GRIP_FLOOR)
+        last = ("h", len(self.pad_points) - 1)
+        partials[last] = partials.get(last, 0.0) + 1.0  # the height h + dz
+        self.height_partials = partials
+        return Command(dz=dz)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
         """The next step of the search for the height where the plate carries
@@ -261,43 +257,8 @@ class ReleaseSchedule:
         points, touching = self.contact_points, report.normal_force > LIFT_TOL * self.weight
         slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
         points.append((h, force, touching))
-        target, self.height_partials = put_down_target(points, self.weight, self.axial_stiffness, slow)
+        target, self.height_partials = put_down_target(points, self.weight, self.axial_stiffness, slow, LIFT_TOL)
         return Command(dz=target - h)
-
-
-def put_down_target(points, weight: float, axial_stiffness: float, slow: bool) -> tuple[float, dict]:
-    """The next height of a put-down (:meth:`ReleaseSchedule._put_down`), m,
-    and its partial derivatives (to differentiate the release's path,
-    :mod:`fe_contact.stepping.derivatives`).
-
-    ``points`` are the put-down's ``(plate height m, vertical force N,
-    touching)`` so far, the last the current one; ``weight`` ``W`` (N),
-    ``axial_stiffness`` ``k = E A / H`` (N/m); ``slow`` bisects.  The partials
-    are keyed ``("h", i)``, ``("f", i)`` (of point ``i``), ``"weight"``,
-    ``"stiffness"``: the bracket's regula falsi ``h_lo - f_lo (h_hi - h_lo) /
-    (f_hi - f_lo)``, its bisection, the step ``h_lo - f_lo / k`` below a flat
-    (off the floor) end, or before the first push ``min(-W / (2 k), h - W / k)``.
-    """
-    W, k = weight, axial_stiffness
-    pulls = [i for i, (_, f, _) in enumerate(points) if f > 0]
-    pushes = [i for i, (_, f, _) in enumerate(points) if f < 0]
-    if not pushes:  # not down to the floor's load yet
-        last = len(points) - 1
-        if -W / (2.0 * k) <= points[last][0] - W / k:
-            return -W / (2.0 * k), {"weight": -1.0 / (2.0 * k), "stiffness": W / (2.0 * k**2)}
-        return points[last][0] - W / k, {("h", last): 1.0, "weight": -1.0 / k, "stiffness": W / k**2}
-    hi = min(pulls, key=lambda i: points[i][:2])
-    lo = max(pushes, key=lambda i: points[i][:2])
-    (h_hi, f_hi, _), (h_lo, f_lo, _) = points[hi], points[lo]
-    middle = 0.5 * (h_lo + h_hi), {("h", lo): 0.5, ("h", hi): 0.5}
-    if slow:
-        return middle
-    if f_hi >= W * (1.0 - LIFT_TOL):  # off the floor up there: F is flat, step with E A / H
-        target = h_lo - f_lo / k
-        return (target, {("h", lo): 1.0, ("f", lo): -1.0 / k, "stiffness": f_lo / k**2}) if target < h_hi else middle
-    d, dh = f_hi - f_lo, h_hi - h_lo
-    return h_lo - f_lo * dh / d, {("h", lo): 1.0 + f_lo / d, ("h", hi): -f_lo / d, ("f", lo): -dh * f_hi / d**2,
-                                  ("f", hi): f_lo * dh / d**2}
 
 
 def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:

@@ -1,0 +1,112 @@
+"""The release in a rollout's derivatives (:mod:`fe_contact.stepping.derivatives`):
+the steps a release took (in parts under step-doubling control), the heights it
+chose as functions of its path, and the put-down's root.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .model import Model, State
+from .sequence import StepSequence
+
+__all__ = ["RecordingSequence", "put_down_root", "release_height_derivative"]
+
+
+class RecordingSequence(StepSequence):
+    """:class:`~fe_contact.stepping.sequence.StepSequence` that keeps the steps it
+    takes since the last one it yielded: a frictional pad's release step is
+    taken in parts under step-doubling control
+    (:func:`~fe_contact.stepping.adaptive.controlled_step`), and its derivative
+    follows the parts that were kept."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.taken = []
+
+    def _step(self, model, state, command, consume=False):
+        out = super()._step(model, state, command, consume=consume)
+        self.taken.append((state, *out))
+        return out
+
+    def parts(self, end: State) -> list:
+        """The converged steps from the last yielded state that end in ``end``
+        (equal displacements: a part's end is copied into the next part's
+        start), in order: ``[(start, state, report), ...]``; None if there is no
+        such chain."""
+        taken, self.taken = self.taken, []
+        by_start = {}
+        for start, state, report in taken:
+            if report.converged:
+                by_start.setdefault(start.displacement.tobytes(), []).append((start, state, report))
+        goal = end.displacement.tobytes()
+
+        def walk(key):
+            for part in by_start.get(key, []):
+                after = part[1].displacement.tobytes()
+                if after == goal:
+                    return [part]
+                rest = walk(after)
+                if rest:
+                    return [part, *rest]
+            return None
+
+        return walk(taken[0][0].displacement.tobytes()) if taken else []
+
+
+def release_height_derivative(model: Model, schedule, d_current: np.ndarray, path: list, d_young: np.ndarray,
+                              d_density: np.ndarray) -> np.ndarray:
+    """Derivative (J,) of the height the release's last command goes to.
+
+    The schedule says how it chose that height
+    (``ReleaseSchedule.height_partials``): a lift step ``h + d / steps``
+    (``d`` the press depth), an absolute height, a put-down's target
+    (:func:`~fe_contact.stepping.release_path.put_down_target`, a function of
+    the put-down's points, plate height and vertical force, of the weight ``W
+    = rho g V`` and of the column's stiffness ``k = E A / H``) or a pad's rise
+    (:func:`~fe_contact.stepping.release_path.pad_lift_rise`, of the lift's
+    points, pad height and load ``-F_z``, of the loaded pad load, the depth
+    and the weight).  ``path`` holds ``(d_h, d_F_z)`` of the release's start
+    (the loaded step) and of each release step so far.  ``d_young``, ``d_density``
+    (J,) are the inputs' derivatives of ``E``, ``rho``.  A put-down's last
+    height is then replaced by the root (:func:`put_down_root`).
+    """
+    out = np.zeros(d_current.shape)
+    points = schedule.pad_points if schedule.pad else schedule.contact_points
+    entries = path if schedule.pad else path[1:]  # a pad's first point is the loaded step
+    first = len(entries) - len(points)  # the points are the last steps' (the current one excepted)
+    for key, c in schedule.height_partials.items():
+        if key == "current":
+            out += c * d_current
+        elif key == "depth":  # d = -t_z at the release's start
+            out -= c * path[0][0]
+        elif key == "loaded":  # the loaded pad load -F_z
+            out -= c * path[0][1]
+        elif key == "weight":
+            out += c * model.weight / model.material.density * d_density
+        elif key == "stiffness":
+            out += c * schedule.axial_stiffness / model.material.young * d_young
+        else:
+            kind, i = key
+            h, force = entries[first + i]
+            out += c * (h if kind == "h" else -force if kind == "n" else force)
+    return out
+
+
+def put_down_root(schedule, d_rest: np.ndarray, force_z: int, d_state: tuple) -> tuple:
+    """The root condition of a put-down (:meth:`~fe_contact.stepping.release.ReleaseSchedule._put_down`):
+    the last height ``h*`` is where the plate's vertical force vanishes,
+    ``g(h*, p) = F_z = 0``, so ``dh*/dp = -g_p / g_h`` (implicit function
+    theorem; ``g_h`` the last column, the last step's own height) and every
+    derivative gains ``d/dh dh*/dp``.  ``d_rest`` (9, J), the rest's output
+    derivatives (row ``force_z`` the plate's vertical force), is corrected in
+    place; returns the state's derivatives ``d_state`` (arrays (., J))
+    corrected.  Nothing to do when the block was not put down (no weight, or
+    a frictional pad: it ends where the release left it)."""
+    if schedule.pad or not (schedule.lifted_off and schedule.contact_points):
+        return d_state
+    g = d_rest[force_z]
+    dh = -g / g[-1]
+    dh[-1] = 0.0
+    d_rest += np.outer(d_rest[:, -1], dh)
+    return tuple(x + np.outer(x[:, -1], dh) for x in d_state)
