@@ -34,8 +34,12 @@ the put-down's root ``h*`` where the plate carries nothing, by the implicit
 function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
 from one more input column (the step's own height).  The path matters: the
 put-down overshoots below ``h*`` and comes back, and the contacts that slip
-on the way keep it.  Open releases (``open > 0``) and a frictional pad are
-not differentiated.
+on the way keep it.  A frictional pad's release
+(:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
+differentiated the same way, its lift's heights by
+:func:`~fe_contact.stepping.release_path.pad_lift_rise`, each step through
+the parts its error control kept.  Open releases (``open > 0``) and a
+release with a retreat are not differentiated.
 """
 
 from __future__ import annotations
