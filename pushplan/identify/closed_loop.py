@@ -32,6 +32,7 @@ from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
 from ..errors import InputError, SolverFailure
 from ..planning import plan
+from ..planning.planner import PlanSession
 from ..planning.replan import replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
@@ -157,8 +158,9 @@ def _shifted(spec: PlanSpec, bias: np.ndarray) -> PlanSpec:
                                yaw_tolerance=REPLAN_TOLERANCE * spec.yaw_tolerance)
 
 
-def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
-    """Plan (or re-plan) with the current model and execute the next push on the truth."""
+def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, session):
+    """Plan (or re-plan) with the current model and execute the next push on the truth
+    (re-plans in the warm ``session`` unless identification changes the model)."""
     identified = None
     if k == 0:
         result = first
@@ -171,7 +173,8 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias):
             if log:
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate, strict=True)))
         # the loop never reads the naive rollout: no baseline
-        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False)
+        # warm in the session; cold with identification (another model each push)
+        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False, session=session)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth
@@ -202,12 +205,16 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     open_truth.execute(planar_commands(first.commands))
     open_final = _final(open_truth, spec, release)
     truth = _new_truth(truth_sc, press)
+    # the warm planner of the re-plans, on the planning mesh (the bias takes up its error too)
+    session = None if use_identify else PlanSession(model_sc, spec, verify=False)
+    if session is not None:
+        session.follow(first)
     iterations, current, bias = [], model_sc, np.zeros(3)
     for k in range(spec.steps):
         t0 = time.perf_counter()
         try:
             current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
-                                                                  noise, log, bias)
+                                                                  noise, log, bias, session)
         except InputError as e:
             raise LoopError(f"closed loop step {k + 1}: {e}") from e
         bias = truth.pose - planned[1] + bias  # planned[1] holds the old bias

@@ -4,8 +4,11 @@ CasADi ``Opti`` and solved by ipopt.
 Commands ``u_k = (dx, dy[, dtheta])`` within the step bounds minimise the
 final-pose error plus a small effort cost.  The return mapping of each step is
 transcribed with its complementarity (slip only on the limit surface), relaxed to
-``sigma (1 - rho) <= COMPLEMENTARITY_EPS``.  The problem is built once and re-solved
-with new ``modifier`` values (the FE-minus-model mismatch of the correction loop).
+``sigma (1 - rho) <= COMPLEMENTARITY_EPS``.  The problem is built once for a horizon of
+K steps and re-solved with new parameter values: the ``modifier`` (the FE-minus-model
+mismatch of the correction loop) and, for a re-plan of the last ``m <= K`` steps
+(:meth:`ReducedPlanner.retarget`), the target, the tolerances, the start lag and which
+steps are active (the last ``K - m`` are held still: zero command).
 """
 
 from __future__ import annotations
@@ -46,8 +49,9 @@ class NlpSolution:
 
 
 class ReducedPlanner:
-    """The planning NLP on the reduced model, built once; re-solved with new
-    ``target`` / ``modifier`` parameter values (CasADi ``Opti`` + ipopt).
+    """The planning NLP on the reduced model, built once for ``spec.steps`` = K steps;
+    re-solved with new parameter values (CasADi ``Opti`` + ipopt, ``set_value`` /
+    ``set_initial``, never rebuilt).
 
     Per step k: the unit direction ``a_k`` of the generalised drive force on the
     limit surface (orthotropy frame, scaled by the friction limits), its level
@@ -55,7 +59,15 @@ class ReducedPlanner:
     units of ``max_step``).  Poses follow explicitly through the one
     :func:`~.reduced_model.push_law` (the lower face slips along the surface normal,
     the upper face leads it by the elastic lag), the law the return mapping
-    :func:`~.reduced_model.simulate_reduced` evaluates numerically.
+    :func:`~.reduced_model.simulate_reduced` evaluates numerically.  The objective is
+
+        J = |p_m + modifier - x*|^2 / tol^2 [+ (yaw_m + ... - yaw*)^2 / yaw_tol^2]
+            + w sum_k |u_k / bound|^2 / m
+
+    over the m active steps (:meth:`retarget`; m = K unless re-planning); an inactive
+    step ``k >= m`` keeps the poses of the last active one (zero command) and its
+    variables are pinned by a term ``|a - e_1|^2 + rho^2 + sigma^2`` of their own (an
+    active step's problem is the one of a horizon of m).
 
     ``initial_lag`` (3,) ``upper - lower`` at the start (m, m, rad): zero from the pressed
     block at rest; a re-plan starts from the loaded state the executed pushes left, whose
@@ -68,25 +80,25 @@ class ReducedPlanner:
 
         if spec.yaw_targeted and not params.rotation:
             raise ValueError("a yaw target needs a reduced model with torsional parameters")
-        self.params, self.spec = params, spec
+        self.params, self.horizon = params, spec.steps
         # the pose the target is for: loaded, or at rest after the release (spring-back of the lag)
         self.springback = springback if spec.target_state == "rest" else None
         K, d = spec.steps, (3 if spec.yaw_targeted else 2)
         opti = ca.Opti()
-        A = opti.variable(d, K)
-        rho = opti.variable(1, K)
-        sigma = opti.variable(1, K)
-        target = opti.parameter(3)
-        modifier = opti.parameter(3)
+        A, rho, sigma = opti.variable(d, K), opti.variable(1, K), opti.variable(1, K)
+        par = {name: opti.parameter(n) for name, n in
+               (("target", 3), ("modifier", 3), ("lag0", 3), ("active", K), ("weights", 3))}
         law = push_law(params)
-        lag0 = np.asarray(initial_lag, float) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
-        lower, upper, cmds = [ca.DM.zeros(3, 1)], [ca.DM(lag0)], []
-        effort = 0
+        lower, upper, cmds = [ca.DM.zeros(3, 1)], [par["lag0"]], []
+        effort = pinned = 0
         for k in range(K):
-            a = A[:, k]
+            a, on = A[:, k], par["active"][k]
             # without a yaw target the force has no torque and the slip no yaw
             p, u, _ = law(lower[-1], a if spec.yaw_targeted else ca.vertcat(a, 0), rho[k],
                           spec.max_step * sigma[k])
+            # an inactive step (on = 0) keeps the poses: its variables only pin themselves
+            p, u = on * p + (1 - on) * lower[-1], on * u + (1 - on) * upper[-1]
+            pinned += (1 - on) * ((a[0] - 1) ** 2 + ca.sumsqr(a[1:]) + rho[k] ** 2 + sigma[k] ** 2)
             du = u - upper[-1]
             lower.append(p)
             upper.append(u)
@@ -101,26 +113,45 @@ class ReducedPlanner:
         opti.subject_to(opti.bounded(0, rho, 1))
         opti.subject_to(sigma >= 0)
         opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
-        final = lower[-1] + modifier
+        final = lower[-1] + par["modifier"]
         if self.springback is not None:
             final = final + ca.DM(self.springback.fractions) * (upper[-1] - lower[-1])
-        miss = final[:2] - target[:2]
-        objective = ca.sumsqr(miss) / spec.tolerance**2 + spec.effort_weight * effort / K
+        miss = final[:2] - par["target"][:2]
+        w = par["weights"]  # 1 / tol^2, 1 / yaw_tol^2, effort_weight / m
+        objective = ca.sumsqr(miss) * w[0] + effort * w[2]
         if spec.yaw_targeted:
-            objective += (final[2] - target[2]) ** 2 / spec.yaw_tolerance**2
-        opti.minimize(objective)
+            objective += (final[2] - par["target"][2]) ** 2 * w[1]
+        opti.minimize(objective + pinned)
         # the starting point is complementary, with rho = 1 on its bound where sigma > 0:
         # ipopt's default bound push (1e-2) would move it off the complementarity set
         opti.solver("ipopt", {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes",
                               "ipopt.max_iter": 3000, "ipopt.tol": 1e-10,
                               "ipopt.mu_strategy": "adaptive", "ipopt.bound_push": 1e-8,
                               "ipopt.bound_frac": 1e-8})
-        self._ca, self.opti = ca, opti
+        self._ca, self.opti, self._par = ca, opti, par
         self._A, self._rho, self._sigma = A, rho, sigma
-        self._target, self._modifier = target, modifier
         self._lower, self._upper = ca.horzcat(*lower), ca.horzcat(*upper)
         self._cmds = ca.horzcat(*cmds)
         self._objective = objective
+        self._base = spec
+        self.retarget(spec, initial_lag)
+
+    def retarget(self, spec: PlanSpec, initial_lag=(0.0, 0.0, 0.0)) -> None:
+        """Plan ``spec`` (its target, tolerances and ``steps`` = m <= K active steps) from
+        ``initial_lag`` (3,) m, m, rad at the next solves.
+
+        Raises
+        ------
+        ValueError
+            ``spec`` differs from the built one in anything but those (bounds, effort
+            weight, target state, yaw targeting) or has more steps than the horizon.
+        """
+        fixed = ("yaw_targeted", "max_step", "max_dtheta", "effort_weight", "target_state")
+        changed = [k for k in fixed if getattr(spec, k) != getattr(self._base, k)]
+        if changed or not 1 <= spec.steps <= self.horizon:
+            raise ValueError(f"retarget: {spec.steps} steps on a horizon of {self.horizon}, changed {changed}")
+        self.spec = spec
+        self.initial_lag = np.asarray(initial_lag, float) * np.array([1.0, 1.0, float(spec.yaw_targeted)])
 
     def predicted_final(self, solution: NlpSolution) -> np.ndarray:
         """The reduced model's final pose (3,) in the target's state (without the modifier)."""
@@ -130,7 +161,8 @@ class ReducedPlanner:
 
     def initial_guess(self) -> dict:
         """The variables of the naive commands (clipped to the step bounds), from the
-        reduced model's return mapping: a feasible, complementary starting point."""
+        reduced model's return mapping: a feasible, complementary starting point
+        (inactive steps at their pinned values)."""
         p, spec = self.params, self.spec
         cmds = naive_commands(spec)
         cmds[:, :2] *= min(1.0, spec.max_step / max(float(np.hypot(*cmds[0, :2])), 1e-300))
@@ -147,17 +179,22 @@ class ReducedPlanner:
         slip = np.diff(traj.lower[:, :2], axis=0) @ p.frame
         per_unit = spec.max_step * math.sqrt(p.mu_x * p.mu_y) * np.linalg.norm(A[:, :2] / m, axis=1)
         sigma = np.where(traj.sliding[1:], np.linalg.norm(slip, axis=1) / np.maximum(per_unit, 1e-300), 0.0)
-        return {"A": A.T, "rho": np.minimum(rho, 1.0)[None, :], "sigma": sigma[None, :]}
+        return _padded({"A": A.T, "rho": np.minimum(rho, 1.0)[None, :], "sigma": sigma[None, :]}, self.horizon)
 
     def solve(self, modifier=(0.0, 0.0, 0.0), warm: NlpSolution | None = None) -> NlpSolution:
-        """Solve for the commands; ``modifier`` (3,) is added to the predicted final pose.
+        """Solve for the commands of the active steps; ``modifier`` (3,) is added to the
+        predicted final pose; ``warm``: a solve to start from (its variables, padded or
+        cut to the horizon), else :meth:`initial_guess`.
 
         A failed ipopt run returns its last iterate with ``success = False``.
         """
-        opti = self.opti
-        opti.set_value(self._target, list(self.spec.target))
-        opti.set_value(self._modifier, [float(v) for v in modifier])
-        guess = warm.variables if warm is not None else self.initial_guess()
+        opti, spec, par, m = self.opti, self.spec, self._par, self.spec.steps
+        opti.set_value(par["target"], list(spec.target))
+        opti.set_value(par["modifier"], [float(v) for v in modifier])
+        opti.set_value(par["lag0"], [float(v) for v in self.initial_lag])
+        opti.set_value(par["active"], [1.0] * m + [0.0] * (self.horizon - m))
+        opti.set_value(par["weights"], [spec.tolerance**-2, spec.yaw_tolerance**-2, spec.effort_weight / m])
+        guess = _padded(warm.variables, self.horizon, m) if warm is not None else self.initial_guess()
         opti.set_initial(self._A, guess["A"])
         opti.set_initial(self._rho, guess["rho"])
         opti.set_initial(self._sigma, guess["sigma"])
@@ -170,21 +207,33 @@ class ReducedPlanner:
         stats = opti.stats()
         value = sol.value
 
-        def mat(x):
-            return np.atleast_2d(np.asarray(value(x), float))
+        def mat(x, rows):
+            return np.atleast_2d(np.asarray(value(x), float)).reshape(rows, -1)
 
-        A = mat(self._A).reshape(self._A.shape)
         return NlpSolution(
-            commands=mat(self._cmds).reshape(3, -1).T.copy(),
-            lower=mat(self._lower).reshape(3, -1).T.copy(),
-            upper=mat(self._upper).reshape(3, -1).T.copy(),
+            commands=mat(self._cmds, 3).T[:m].copy(),
+            lower=mat(self._lower, 3).T[:m + 1].copy(),
+            upper=mat(self._upper, 3).T[:m + 1].copy(),
             objective=float(value(self._objective)),
             iterations=int(stats.get("iter_count", -1)),
             success=bool(stats.get("success", False)),
             return_status=str(stats.get("return_status", "")),
             wall_time=wall,
-            variables={"A": A, "rho": mat(self._rho).reshape(1, -1), "sigma": mat(self._sigma).reshape(1, -1)},
+            variables={"A": mat(self._A, self._A.shape[0]), "rho": mat(self._rho, 1), "sigma": mat(self._sigma, 1)},
         )
+
+
+def _padded(variables: dict, horizon: int, active: int | None = None) -> dict:
+    """NLP variables cut to their first ``active`` steps (default: all) and padded to
+    ``horizon`` columns with an inactive step's pinned values (``a = e_1``, ``rho = sigma = 0``)."""
+    out = {}
+    for name, v in variables.items():
+        v = np.asarray(v, float)[:, :active]
+        tail = np.zeros((v.shape[0], horizon - v.shape[1]))
+        if name == "A":
+            tail[0] = 1.0
+        out[name] = np.hstack([v, tail])[:, :horizon]
+    return out
 
 
 def model_consistency(params: PushParameters, solution: NlpSolution) -> float:

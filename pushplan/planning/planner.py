@@ -27,6 +27,7 @@ callers of the earlier flat module.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import Callable, NamedTuple
@@ -35,6 +36,7 @@ import numpy as np
 
 from ..config.plan import PlanSpec, parse_plan, press_commands
 from ..config.scenario import Scenario
+from ..errors import InputError
 from .document import plan_commands_json, plan_document
 from .nlp import NlpSolution, ReducedPlanner, model_consistency
 from .reduced_model import PushParameters, calibrate
@@ -43,10 +45,14 @@ from .rollouts import FeRollouts, Rollout
 from .springback import Springback, calibrate_springback
 from .target import naive_commands, pose_error, reach_message, within_tolerance
 
-__all__ = ["NO_PROGRESS", "plan", "parse_plan", "plan_commands_json", "plan_document"]
+__all__ = ["CARRY_LAG_FRACTION", "NO_PROGRESS", "PlanSession", "plan", "parse_plan", "plan_commands_json",
+           "plan_document"]
 
 NO_PROGRESS = 0.1
 """An infeasible plan stops when the error changes by less than this fraction of the tolerance."""
+CARRY_LAG_FRACTION = 0.1
+"""A session keeps its reduced model while it predicts the FE lag after each executed push
+within this fraction of the FE's lag (:meth:`PlanSession.carries_calibration`)."""
 PHASE_TIMINGS = ("calibration", "nlp", "planning_rollouts", "verification_rollouts", "naive_verification")
 
 
@@ -71,9 +77,12 @@ class _Correction:
     log, the last planning-mesh rollout and the best verification-mesh rollout.
     """
 
-    def __init__(self, planner: ReducedPlanner, timings: dict, log: Callable[[str], None] | None):
+    def __init__(self, planner: ReducedPlanner, timings: dict, log: Callable[[str], None] | None,
+                 scored: str = "verification", modifier=None, warm: NlpSolution | None = None):
         self.planner, self.spec, self.timings, self.log = planner, planner.spec, timings, log
-        self.modifier = np.zeros(3)
+        self.scored = scored  # the phase whose best rollout is the result
+        self.modifier = np.zeros(3) if modifier is None else np.asarray(modifier, float)
+        self.warm = warm  # where the first solve starts (None: the naive commands)
         self.solution: NlpSolution | None = None
         self.iterations: list[Iteration] = []
         self.planning: Rollout | None = None
@@ -96,7 +105,7 @@ class _Correction:
         spec = self.spec
         resolve = self.solution is None or not (phase == "verification" and j == 0)
         if resolve:
-            self.solution = self.planner.solve(self.modifier, warm=self.solution)
+            self.solution = self.planner.solve(self.modifier, warm=self.solution or self.warm)
             self.timings["nlp"] += self.solution.wall_time
         solution = self.solution
         roll = fe.rollout(solution.commands)
@@ -116,7 +125,7 @@ class _Correction:
         _log_line(self.log, _iteration_line(it, spec))
         if phase == "planning":
             self.planning = roll
-        else:
+        if phase == self.scored:
             score = pos_err / spec.tolerance + yaw_err / spec.yaw_tolerance
             if self.best is None or score < self.best.score:
                 self.best = _Best(score, roll, solution, used_modifier)
@@ -134,7 +143,7 @@ def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tu
     """The reduced model fitted to the naive push (and for a yaw target a pure rotation)
     on the planning mesh from the pressed block at rest (its compliances are the block's,
     whatever was executed before a re-plan), and the spring-back of its release."""
-    calib = coarse.rollout(naive, release=spec.target_state == "rest")
+    calib = coarse.rollout(naive, release=spec.target_state == "rest", from_rest=True)
     springback = Springback(0.0, 0.0)
     if calib.rest is not None:
         springback = calibrate_springback(calib.lower[-1], calib.upper[-1], calib.rest)
@@ -142,7 +151,7 @@ def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tu
                        f"{springback.yaw:.4g} in yaw")
     twist = None
     if spec.yaw_targeted:
-        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False)
+        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False, from_rest=True)
     params = calibrate(coarse.model, calib.reports, twist.reports if twist else None, log=log)
     _log_line(log, f"calibrated on {coarse.label} mesh {spec.planning_elements}: compliance "
                    f"{params.compliance:.4g} m/N, normal force {params.normal_force:.5g} N"
@@ -158,18 +167,172 @@ def _start_lag(fe: FeRollouts) -> np.ndarray:
     return np.array([*rep.lag, pressed.state.upper_rotation - rep.lower_yaw])
 
 
-def _status(spec: PlanSpec, verified: Rollout, reach: str) -> tuple[str, str]:
-    """The plan's status and message (``reach``: :func:`~.target.reach_message`)."""
+def _status(spec: PlanSpec, verified: Rollout, reach: str, mesh: str = "verification") -> tuple[str, str]:
+    """The plan's status and message (``reach``: :func:`~.target.reach_message`; ``mesh``
+    the one the result was verified on)."""
     if not spec.reachable:
         return "infeasible", reach
+    on = "" if mesh == "verification" else f" (on the {mesh} mesh)"
     if within_tolerance(verified.final(spec.target_state), spec):
-        return "converged", "FE-verified final pose within tolerance"
-    return "not_converged", (f"FE-verified final pose not within tolerance after {spec.max_rollouts} rollouts "
+        return "converged", "FE-verified final pose within tolerance" + on
+    return "not_converged", (f"FE-verified final pose{on} not within tolerance after {spec.max_rollouts} rollouts "
                              "per mesh; the best verified plan is reported")
 
 
+class PlanSession:
+    """The planner's state between the re-plans of a closed loop (issue 32), built once:
+    the planning-mesh (and, with ``verify``, the verification-mesh) FE model with its
+    compiled kernels and factorisations, the FE state after the press and after each
+    executed push (:meth:`advance`: one FE step per push, never re-run from the press),
+    the calibrated reduced model and the NLP (built for the scenario's K steps; a
+    re-plan of the last m is a re-solve with new parameter values, warm-started from
+    the last plan shifted by the executed pushes, with its modifier).
+
+    The calibration is carried over while the reduced model predicts the FE lag
+    ``upper - lower`` after each executed push within :data:`CARRY_LAG_FRACTION` of the
+    FE's (yaw too for a yaw target); else it is re-fitted as a cold re-plan fits it
+    (a naive push of the remaining steps from rest) and the NLP rebuilt.
+
+    :func:`plan` is one session planned once (``pushplan plan``, a cold re-plan):
+    ``after`` executed commands applied once with the press, both meshes.
+    """
+
+    def __init__(self, scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), verify: bool = True):
+        self.scenario, self.spec, self.log = scenario, spec or parse_plan(scenario), log
+        spec = self.spec
+        t0 = time.perf_counter()
+        press, release = press_commands(scenario), scenario.release  # rollouts show the rest pose when it lets go
+        self.coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature,
+                                              what="plan.planning_elements"), press, "planning", release=release)
+        self.fine = FeRollouts(scenario.model(), press, "verification", release=release) if verify else None
+        self.calibration_time = 0.0
+        self.calibrations = self.nlp_builds = 0
+        self._counted: dict = {}
+        self._last: tuple[NlpSolution, np.ndarray, int] | None = None  # solution, modifier, pushes since
+        self._calibrate(spec)
+        self.advance(after)
+        self.build_time = time.perf_counter() - t0
+
+    def _calibrate(self, spec: PlanSpec) -> None:
+        t0 = time.perf_counter()
+        self.params, self.springback = _calibrate(self.coarse, spec, naive_commands(spec), self.log)
+        self.nlp = ReducedPlanner(self.params, self.spec, self.springback)
+        self.calibrations += 1
+        self.nlp_builds += 1
+        self.calibration_time += time.perf_counter() - t0
+
+    @property
+    def executed(self) -> tuple:
+        """The commands executed after the press (fe_contact Commands)."""
+        return self.coarse.after
+
+    def advance(self, commands) -> None:
+        """Execute pushes (fe_contact Commands) on the session's meshes, one FE step each.
+
+        Raises
+        ------
+        PlanningError
+            A step did not converge.
+        """
+        commands = tuple(commands)
+        if not commands:
+            return
+        for fe in (self.coarse, self.fine):
+            if fe is not None:
+                fe.advance(commands)
+        if self._last is not None:
+            solution, modifier, n = self._last
+            self._last = (solution, modifier, n + len(commands))
+
+    def _rollouts_since(self) -> dict:
+        """FE rollouts per mesh since the last plan (the first plan: since the start,
+        the calibration's included)."""
+        now = {"planning": self.coarse.count, "verification": self.fine.count if self.fine else 0}
+        since = {k: v - self._counted.get(k, 0) for k, v in now.items()}
+        self._counted = now
+        return since
+
+    def follow(self, result: PlanResult) -> None:
+        """Continue from ``result``, a plan of this session's spec made elsewhere (the
+        closed loop's first plan, on both meshes): its NLP solution warm-starts the
+        next re-plan, its modifier starts that re-plan's correction."""
+        self._last = (result.solution, np.asarray(result.modifier, float), len(self.executed))
+
+    def carries_calibration(self) -> bool:
+        """Whether the reduced model of the last plan predicted the FE lag after the pushes
+        executed since within :data:`CARRY_LAG_FRACTION` of it (yes before a plan or a push)."""
+        if self._last is None or self._last[2] == 0:
+            return True
+        solution, _, n = self._last
+        if n >= len(solution.lower):
+            return False
+        predicted, fe = solution.upper[n] - solution.lower[n], _start_lag(self.coarse)
+        ok = np.hypot(*(predicted[:2] - fe[:2])) <= CARRY_LAG_FRACTION * np.hypot(*fe[:2])
+        if self.spec.yaw_targeted:
+            ok = ok and abs(predicted[2] - fe[2]) <= CARRY_LAG_FRACTION * abs(fe[2])
+        return bool(ok)
+
+    def continue_from(self, executed) -> None:
+        """Execute the pushes of ``executed`` (all pushes after the press, fe_contact
+        Commands) that this session has not executed yet.
+
+        Raises
+        ------
+        InputError
+            ``executed`` does not continue the session's pushes.
+        """
+        executed, done = tuple(executed), self.executed
+        if executed[:len(done)] != done:
+            raise InputError(f"observations: their {len(executed)} pushes do not continue the "
+                             f"{len(done)} this session executed")
+        self.advance(executed[len(done):])
+
+    def plan(self, spec: PlanSpec | None = None, baseline: bool = True) -> PlanResult:
+        """Plan ``spec`` (default the session's; a re-plan: the remaining steps, target
+        relative to the current pose) from the current state; see :func:`plan`."""
+        t_start = time.perf_counter()
+        spec = spec or self.spec
+        timings = dict.fromkeys(PHASE_TIMINGS, 0.0)
+        reach = reach_message(spec)
+        if reach:
+            _log_line(self.log, "warning: " + reach)
+        warm, modifier = None, None
+        if not self.carries_calibration():
+            _log_line(self.log, "the reduced model no longer predicts the lag of the executed pushes: re-calibrating")
+            self._calibrate(spec)
+        elif self._last is not None:
+            solution, modifier, n = self._last
+            warm = dataclasses.replace(solution, variables={k: v[:, n:] for k, v in solution.variables.items()})
+        timings["calibration"] = self.calibration_time
+        self.calibration_time = 0.0
+        self.nlp.retarget(spec, _start_lag(self.coarse) if self.coarse.relative else np.zeros(3))
+        scored = "verification" if self.fine is not None else "planning"
+        loop = _Correction(self.nlp, timings, self.log, scored, modifier, warm)
+        loop.run("planning", self.coarse)
+        if self.fine is not None:
+            loop.run("verification", self.fine)
+        t0 = time.perf_counter()
+        final = self.fine or self.coarse
+        naive_roll = final.rollout(naive_commands(spec)) if baseline else None
+        timings["naive_verification"] = time.perf_counter() - t0
+        timings["press"] = self.coarse.press_time + (self.fine.press_time if self.fine else 0.0)
+        timings["total"] = time.perf_counter() - t_start
+        best = loop.best
+        self._last = (best.solution, best.modifier, 0)
+        status, message = _status(spec, best.rollout, reach, "verification" if self.fine else "planning")
+        pressed = final.pressed()
+        return PlanResult(
+            scenario=self.scenario, spec=spec, status=status, message=message, params=self.params,
+            springback=self.springback, solution=best.solution, planning=loop.planning, verified=best.rollout,
+            naive=naive_roll, modifier=best.modifier, iterations=tuple(loop.iterations),
+            rollouts=self._rollouts_since(),
+            timings=timings, press_reports=pressed.reports, press_steps=pressed.steps,
+        )
+
+
 def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), baseline: bool = True) -> PlanResult:
-    """Plan the commands of the scenario's ``[plan]`` table (see the module docstring).
+    """Plan the commands of the scenario's ``[plan]`` table (see the module docstring):
+    a :class:`PlanSession` planned once.
 
     Parameters
     ----------
@@ -193,41 +356,4 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), b
     PlanningError
         An FE step failed.
     """
-    t_start = time.perf_counter()
-    spec = spec or parse_plan(scenario)
-    press = press_commands(scenario)
-    timings = dict.fromkeys(PHASE_TIMINGS, 0.0)
-    reach = reach_message(spec)
-    if reach:
-        _log_line(log, "warning: " + reach)
-    release = scenario.release  # the rollouts show the rest pose whenever the scenario lets go
-    coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature,
-                                     what="plan.planning_elements"),
-                        press, "planning", release=release, after=after)
-    fine = FeRollouts(scenario.model(), press, "verification", release=release, after=after)
-    naive = naive_commands(spec)
-    t0 = time.perf_counter()
-    at_rest = coarse if not after else FeRollouts(coarse.model, press, "planning", release=release)
-    params, springback = _calibrate(at_rest, spec, naive, log)
-    timings["calibration"] = time.perf_counter() - t0
-
-    loop = _Correction(ReducedPlanner(params, spec, springback, _start_lag(coarse) if after else np.zeros(3)),
-                       timings, log)
-    loop.run("planning", coarse)
-    loop.run("verification", fine)
-
-    t0 = time.perf_counter()
-    naive_roll = fine.rollout(naive) if baseline else None
-    timings["naive_verification"] = time.perf_counter() - t0
-    timings["press"] = coarse.press_time + fine.press_time
-    timings["total"] = time.perf_counter() - t_start
-    best = loop.best
-    status, message = _status(spec, best.rollout, reach)
-    pressed = fine.pressed()
-    return PlanResult(
-        scenario=scenario, spec=spec, status=status, message=message, params=params, springback=springback,
-        solution=best.solution,
-        planning=loop.planning, verified=best.rollout, naive=naive_roll, modifier=best.modifier,
-        iterations=tuple(loop.iterations), rollouts={"planning": coarse.count, "verification": fine.count},
-        timings=timings, press_reports=pressed.reports, press_steps=pressed.steps,
-    )
+    return PlanSession(scenario, spec, log, after).plan(spec, baseline)

@@ -22,7 +22,7 @@ from ..config.observations import Observations, leading_press
 from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
 from ..errors import InputError
-from .planner import plan
+from .planner import PlanSession, plan
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,16 @@ def remaining_spec(spec: PlanSpec, start: Start) -> PlanSpec:
     return dataclasses.replace(spec, target=tuple(float(v) for v in target), steps=spec.steps - len(start.executed))
 
 
-def replan(scenario: Scenario, spec: PlanSpec, obs: Observations, log=None, baseline: bool = True):
+def replan(scenario: Scenario, spec: PlanSpec, obs: Observations, log=None, baseline: bool = True,
+           session: PlanSession | None = None):
     """Plan the remaining steps from the state of ``obs``; returns ``(PlanResult, Start)``
-    (``baseline``: see :func:`~pushplan.planning.planner.plan`)."""
+    (``baseline``: see :func:`~pushplan.planning.planner.plan`).
+
+    Cold (a new :func:`plan` from the press), or warm in ``session`` (built once for
+    ``scenario`` and a spec with the same bounds), which first executes the pushes of
+    ``obs`` it has not executed, one FE step each."""
     start = measured_start(scenario, spec, obs)
-    return plan(scenario, remaining_spec(spec, start), log=log, after=start.executed, baseline=baseline), start
+    if session is None:
+        return plan(scenario, remaining_spec(spec, start), log=log, after=start.executed, baseline=baseline), start
+    session.continue_from(start.executed)
+    return session.plan(remaining_spec(spec, start), baseline=baseline), start

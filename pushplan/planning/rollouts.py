@@ -67,23 +67,30 @@ class Rollout:
 
 
 class FeRollouts:
-    """The FE model on one mesh, pressed once; every rollout branches from the pressed
-    state (``drive`` never mutates its start state).  Counts rollouts; times the press.
+    """The FE model on one mesh, pressed once; every rollout branches from the start
+    state (``drive`` never mutates its start state): the pressed block, or the state
+    the executed commands left (:meth:`advance`).  Counts rollouts; times the press.
 
     ``after``: commands already executed after the press (re-planning from a measured
-    state); they are applied once with the press, and rollout poses are then relative
+    state); they are applied once after the press, and rollout poses are then relative
     to the pose they leave (row 0 is zero)."""
 
     def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None,
                  after: tuple[Command, ...] = ()):
         self.model = model
-        self.press = tuple(press) + tuple(after)
-        self.relative = bool(after)
+        self.press = tuple(press)
+        self.after = tuple(after)
         self.label = label
         self.release = release
         self.count = 0
         self.press_time = 0.0
+        self._at_rest: Pressed | None = None
         self._pressed: Pressed | None = None
+
+    @property
+    def relative(self) -> bool:
+        """Whether rollouts start after executed commands (poses relative to their end)."""
+        return bool(self.after)
 
     def _drive(self, commands, state: State | None = None, keep_states: bool = False,
                release: Release | None = None) -> Run:
@@ -93,7 +100,7 @@ class FeRollouts:
             raise PlanningError(f"FE step {f.step} on the {self.label} mesh failed ({f.status}): {f.message}")
         return run
 
-    def pressed(self) -> Pressed:
+    def at_rest(self) -> Pressed:
         """The state after the press (computed once).
 
         Raises
@@ -101,23 +108,57 @@ class FeRollouts:
         PlanningError
             A press step did not converge.
         """
-        if self._pressed is None:
+        if self._at_rest is None:
             t0 = time.perf_counter()
             run = self._drive(self.press)
-            self._pressed = Pressed(run.state, tuple(run.reports), tuple(run.summary.steps))
-            self.press_time = time.perf_counter() - t0
+            self._at_rest = Pressed(run.state, tuple(run.reports), tuple(run.summary.steps))
+            self.press_time += time.perf_counter() - t0
+        return self._at_rest
+
+    def pressed(self) -> Pressed:
+        """The start of the rollouts: the state after the press and the executed commands
+        (computed once, then moved by :meth:`advance`); ``reports`` / ``steps`` all of them.
+
+        Raises
+        ------
+        PlanningError
+            A step did not converge.
+        """
+        if self._pressed is None:
+            self._pressed = self._advanced(self.at_rest(), self.after)
         return self._pressed
 
-    def rollout(self, commands: np.ndarray, release: bool = True) -> Rollout:
-        """Apply (K, 3) commands ``(dx, dy, dtheta)`` after the press, then the
-        release if there is one and ``release``.
+    def _advanced(self, start: Pressed, commands) -> Pressed:
+        if not commands:
+            return start
+        t0 = time.perf_counter()
+        run = self._drive(tuple(commands), start.state)
+        self.press_time += time.perf_counter() - t0
+        return Pressed(run.state, start.reports + tuple(run.reports), start.steps + tuple(run.summary.steps))
+
+    def advance(self, commands) -> None:
+        """Execute ``commands`` (fe_contact Commands) from the start state: one FE step
+        each, never re-run from the press; later rollouts start after them.
+
+        Raises
+        ------
+        PlanningError
+            A step did not converge.
+        """
+        self._pressed = self._advanced(self.pressed(), tuple(commands))
+        self.after += tuple(commands)
+
+    def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
+        """Apply (K, 3) commands ``(dx, dy, dtheta)`` from the start state (``from_rest``:
+        from the pressed block at rest, absolute poses), then the release if there is one
+        and ``release``.
 
         Raises
         ------
         PlanningError
             An FE step did not converge.
         """
-        pressed = self.pressed()
+        pressed = self.at_rest() if from_rest else self.pressed()
         t0 = time.perf_counter()
         run = self._drive(planar_commands(commands), pressed.state, keep_states=True,
                           release=self.release if release else None)
@@ -127,7 +168,7 @@ class FeRollouts:
         upper = np.array([[*s.upper_translation[:2], s.upper_rotation] for s in run.states[:K + 1]])
         rest = run.summary.rest
         rest = None if rest is None else np.array([*rest.lower_centroid[:2], rest.lower_yaw])
-        if self.relative:  # poses from the pose the executed commands left
+        if self.relative and not from_rest:  # poses from the pose the executed commands left
             origin = lower[0].copy()
             lower, upper = lower - origin, upper - upper[0]
             rest = None if rest is None else rest - origin
