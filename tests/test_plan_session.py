@@ -20,11 +20,15 @@ from pushplan.planning.target import within_tolerance
 from pushplan.run import drive
 from pushplan.run.observations import observations_from_steps
 
-from test_closed_loop import MODEL, PLAN
+from test_closed_loop import MODEL, PLAN, YAW_MODEL, YAW_PLAN
 
 COMMANDS_AGREE = 1e-2
 """Warm vs cold re-planned commands, relative to max_step (their calibrations differ: the
 warm one is the first plan's, the cold one a naive push of the remaining steps)."""
+GAUSS_NEWTON_GAIN = 0.05
+"""Position error after the first Gauss-Newton step over the first rollout's, at most; a
+fifth of it in yaw (measured 0.020 and 0.0065; the modifier's first correction of the same
+plan: 0.089 and 0.019)."""
 STATE_AGREE = 1e-9
 """The lag after the executed pushes, stepped one push at a time vs in one run, relative."""
 
@@ -96,3 +100,68 @@ def test_a_calibration_that_no_longer_predicts_the_lag_is_refitted(setting, monk
     # the refit is the cold re-plan's calibration: a naive push of the remaining steps
     cold, _ = replan(model, spec, obs, baseline=False)
     assert refit_result.params.compliance == pytest.approx(cold.params.compliance, rel=1e-9)
+
+
+# -- the FE correction with the exact gradient (issue 30 item 4) -----------------------------
+def test_a_gauss_newton_step_solves_a_linear_push_exactly():
+    """On a linear FE map p = J u (a rigid block pushed without lag: J sums the
+    commands) and a negligible effort weight, one step lands on the target, spread
+    over the commands by least effort (equal steps)."""
+    import dataclasses
+
+    from pushplan.planning.refine import gauss_newton_commands
+
+    model = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.3, mu_y=0.15) + PLAN))
+    spec = dataclasses.replace(parse_plan(model), effort_weight=1e-12)
+    m = spec.steps
+    J = np.zeros((3, m, 3))
+    J[0, :, 0] = J[1, :, 1] = 1.0
+    u = np.zeros((m, 3))
+    u[0, :2] = 1e-4  # a first guess that misses
+    refined = gauss_newton_commands(u, J.reshape(3, -1) @ u.ravel(), J, spec)
+    np.testing.assert_allclose(refined.sum(axis=0)[:2], spec.target[:2], rtol=1e-9)
+    np.testing.assert_allclose(refined[:, :2], np.tile(np.array(spec.target[:2]) / m, (m, 1)), rtol=1e-6)
+    # a target beyond the bounds: the step is refused (the NLP re-solves with the modifier)
+    far = dataclasses.replace(spec, target=(10 * spec.max_step * m, 0.0, 0.0))
+    assert gauss_newton_commands(u, J.reshape(3, -1) @ u.ravel(), J, far) is None
+
+
+@pytest.mark.parametrize("refinement", ["modifier", "exact_gradient"])
+def test_both_refinements_reach_the_tolerance_and_plan_json_names_them(tmp_path, refinement):
+    import json
+
+    from pushplan.cli import main
+
+    text = YAW_MODEL.format(young=5e6, mu_x=0.8, mu_y=0.3) + YAW_PLAN  # a rubber block, a yaw target
+    model = parse_scenario(tomllib.loads(text))
+    spec = parse_plan(model)
+    result = plan(model, spec, baseline=False, refinement=refinement)
+    assert result.status == "converged" and result.refinement == refinement
+    # the first FE rollout misses (the reduced model is not the FE model): the correction works
+    assert result.iterations[0].position_error > 10 * spec.tolerance
+    assert within_tolerance(result.verified.lower[-1], spec)
+    steps = [it.gauss_newton for it in result.iterations]
+    assert any(steps) == (refinement == "exact_gradient")
+    if refinement == "exact_gradient":  # the first step with the exact Jacobian (measured: 50x and 150x)
+        before, after = result.iterations[0], result.iterations[steps.index(True)]
+        assert after.position_error <= GAUSS_NEWTON_GAIN * before.position_error
+        assert after.yaw_error_deg <= GAUSS_NEWTON_GAIN / 5 * before.yaw_error_deg
+    (tmp_path / "m.toml").write_text(text)
+    assert main(["plan", str(tmp_path / "m.toml"), "--out", str(tmp_path / "p"), "--quiet", "--no-recording",
+                 "--refinement", refinement]) == 0
+    assert json.loads((tmp_path / "p" / "plan.json").read_text())["solver"]["refinement"] == refinement
+
+
+def test_the_cli_names_the_planners_refinements():
+    from pushplan.cli import plan as cli_plan
+
+    assert cli_plan.REFINEMENTS == planner_module.REFINEMENTS
+    assert cli_plan.DEFAULT_REFINEMENT == planner_module.DEFAULT_REFINEMENT
+
+
+def test_a_rest_target_falls_back_to_modifier_adaptation():
+    from test_plan_release import PLAN as RELEASE_PLAN
+
+    scenario = parse_scenario(tomllib.loads(RELEASE_PLAN))
+    session = PlanSession(scenario, verify=False, refinement="exact_gradient")
+    assert session.refinement == "modifier"

@@ -13,6 +13,11 @@ import sys
 from ..errors import EXIT_SOLVER_FAILURE
 from .simulate import add_memory_flag
 
+REFINEMENTS = ("modifier", "exact_gradient")
+DEFAULT_REFINEMENT = "modifier"
+"""``--refinement``: :data:`pushplan.planning.planner.REFINEMENTS` and its default, written
+here so that ``pushplan --help`` does not import the planner (a test checks they agree)."""
+
 
 def _describe(e: dict) -> str:
     """A ``final_error`` entry of ``plan.json`` in mm, % of travel and degrees."""
@@ -92,7 +97,8 @@ def cmd_plan(args) -> int:
             print(text, file=sys.stderr, flush=True)
 
     with tx:
-        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline)
+        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
+                      refinement=args.refinement)
         doc = plan_document(result)
         if spec.world_origin is not None:
             doc["world"] = _world_poses(doc, spec)
@@ -126,8 +132,8 @@ def cmd_plan(args) -> int:
         gci = "no monotone sequence" if ve["position_gci"] is None else f"{ve['position_gci'] * 1e3:.5f} mm"
         print(f"  verification mesh error (GCI of {list(scenario.elements)} from "
               f"{[lv['elements'] for lv in ve['levels']]}): position {gci}")
-    print(f"  FE rollouts: planning {result.rollouts['planning']}, verification {result.rollouts['verification']}; "
-          f"plan time {result.timings['total']:.2f} s")
+    print(f"  FE rollouts: planning {result.rollouts['planning']}, verification {result.rollouts['verification']} "
+          f"(refinement: {result.refinement}); plan time {result.timings['total']:.2f} s")
     print("  wrote " + ", ".join(str(p) for p in wrote))
     if result.status in ("infeasible", "not_converged"):
         print(f"pushplan: {result.message}", file=sys.stderr)
@@ -153,6 +159,10 @@ def register(subparsers) -> None:
                    "(plan.json: verification_error)")
     p.add_argument("--verification-ratio", type=real(1.0, MAX_RATIO), default=1.5,
                    help=f"coarsening ratio of those meshes (> 1, at most {MAX_RATIO}; default 1.5)")
+    p.add_argument("--refinement", choices=REFINEMENTS, default=DEFAULT_REFINEMENT,
+                   help="FE correction of the plan: modifier adaptation, or Gauss-Newton steps with the exact "
+                   "gradient (modifier adaptation where a release or a frictional pad has no derivatives); "
+                   f"default {DEFAULT_REFINEMENT}")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_memory_flag(p)
     p.set_defaults(func=cmd_plan)

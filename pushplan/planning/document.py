@@ -83,6 +83,7 @@ def plan_document(result: PlanResult) -> dict:
         },
         "solver": {
             "nlp": "casadi Opti + ipopt",
+            "refinement": result.refinement,
             "nlp_solves": sum(1 for it in result.iterations if it.resolved),
             "nlp_success": sol.success,
             "nlp_iterations": sol.iterations,

@@ -39,6 +39,7 @@ from ..config.scenario import Scenario
 from ..errors import InputError
 from .document import plan_commands_json, plan_document
 from .nlp import NlpSolution, ReducedPlanner, model_consistency
+from .refine import gauss_newton_commands
 from .reduced_model import PushParameters, calibrate
 from .result import Iteration, PlanResult
 from .rollouts import FeRollouts, Rollout
@@ -50,6 +51,8 @@ __all__ = ["CARRY_LAG_FRACTION", "NO_PROGRESS", "PlanSession", "plan", "parse_pl
 
 NO_PROGRESS = 0.1
 """An infeasible plan stops when the error changes by less than this fraction of the tolerance."""
+REFINEMENTS = ("modifier", "exact_gradient")
+DEFAULT_REFINEMENT = "modifier"
 CARRY_LAG_FRACTION = 0.1
 """A session keeps its reduced model while it predicts the FE lag after each executed push
 within this fraction of the FE's lag (:meth:`PlanSession.carries_calibration`)."""
@@ -71,19 +74,25 @@ class _Best(NamedTuple):
 
 
 class _Correction:
-    """Modifier adaptation across the planning and the verification mesh.
+    """The FE correction across the planning and the verification mesh.
 
-    Holds the NLP (re-solved with the last FE-minus-model mismatch), the iteration
-    log, the last planning-mesh rollout and the best verification-mesh rollout.
+    ``"modifier"``: modifier adaptation, the NLP re-solved with the last FE-minus-model
+    mismatch.  ``"exact_gradient"``: after an NLP solve and its rollout, Gauss-Newton
+    steps on the FE model with the exact Jacobian (:mod:`.refine`), the NLP re-solved
+    with the modifier only where a step would leave the bounds.  Holds the iteration
+    log, the last planning-mesh rollout and the best rollout of the ``scored`` mesh.
     """
 
     def __init__(self, planner: ReducedPlanner, timings: dict, log: Callable[[str], None] | None,
-                 scored: str = "verification", modifier=None, warm: NlpSolution | None = None):
+                 scored: str = "verification", modifier=None, warm: NlpSolution | None = None,
+                 method: str = "modifier"):
         self.planner, self.spec, self.timings, self.log = planner, planner.spec, timings, log
-        self.scored = scored  # the phase whose best rollout is the result
+        self.scored, self.method = scored, method  # the phase whose best rollout is the result
         self.modifier = np.zeros(3) if modifier is None else np.asarray(modifier, float)
         self.warm = warm  # where the first solve starts (None: the naive commands)
         self.solution: NlpSolution | None = None
+        self.commands: np.ndarray | None = None  # the last commands rolled out
+        self.refined: np.ndarray | None = None  # the Gauss-Newton commands of the last rollout
         self.iterations: list[Iteration] = []
         self.planning: Rollout | None = None
         self.best: _Best | None = None
@@ -92,6 +101,7 @@ class _Correction:
         """Up to ``max_rollouts`` rollouts on ``fe``'s mesh; the first verification
         rollout re-checks the planning mesh's last plan without a re-solve."""
         previous_error = math.inf
+        self.refined = None
         for j in range(self.spec.max_rollouts):
             roll, pos_err = self._iterate(phase, fe, j)
             if within_tolerance(roll.final(self.spec.target_state), self.spec):
@@ -100,26 +110,39 @@ class _Correction:
                 break
             previous_error = pos_err
 
+    def _next_commands(self, phase: str, j: int) -> tuple[np.ndarray, bool, bool]:
+        """The commands to roll out, whether the NLP was re-solved for them and whether
+        they are a Gauss-Newton step."""
+        if self.solution is not None and phase == "verification" and j == 0:
+            return self.commands, False, False
+        if self.refined is not None:
+            return self.refined, False, True
+        self.solution = self.planner.solve(self.modifier, warm=self.solution or self.warm)
+        self.timings["nlp"] += self.solution.wall_time
+        return self.solution.commands, True, False
+
     def _iterate(self, phase: str, fe: FeRollouts, j: int) -> tuple[Rollout, float]:
-        """One (re-solve and) rollout; returns it and its final position error."""
+        """One (re-solve or Gauss-Newton step and) rollout; returns it and its final position error."""
         spec = self.spec
-        resolve = self.solution is None or not (phase == "verification" and j == 0)
-        if resolve:
-            self.solution = self.planner.solve(self.modifier, warm=self.solution or self.warm)
-            self.timings["nlp"] += self.solution.wall_time
-        solution = self.solution
-        roll = fe.rollout(solution.commands)
+        commands, resolve, newton = self._next_commands(phase, j)
+        solution, self.commands = self.solution, commands
+        if self.method == "exact_gradient":
+            roll, jac = fe.rollout_with_jacobian(commands)
+        else:
+            roll, jac = fe.rollout(commands), None
         self.timings[f"{phase}_rollouts"] += roll.wall_time
         used_modifier = self.modifier
         final = roll.final(spec.target_state)
-        self.modifier = final - self.planner.predicted_final(solution)
+        if not newton:  # the modifier is of the NLP's own commands
+            self.modifier = final - self.planner.predicted_final(solution)
+        self.refined = None if jac is None else gauss_newton_commands(commands, final, jac, spec)
         pos_err, yaw_err = pose_error(final, spec)
         it = Iteration(
             phase=phase, rollout=j + 1, resolved=resolve, nlp_iterations=solution.iterations,
             nlp_success=solution.success, nlp_status=solution.return_status, objective=solution.objective,
             modifier_used=tuple(float(v) for v in used_modifier), position_error=pos_err,
             yaw_error_deg=math.degrees(yaw_err), model_consistency=model_consistency(self.planner.params, solution),
-            rollout_wall_s=roll.wall_time, nlp_wall_s=solution.wall_time if resolve else 0.0,
+            rollout_wall_s=roll.wall_time, nlp_wall_s=solution.wall_time if resolve else 0.0, gauss_newton=newton,
         )
         self.iterations.append(it)
         _log_line(self.log, _iteration_line(it, spec))
@@ -136,7 +159,8 @@ def _iteration_line(it: Iteration, spec: PlanSpec) -> str:
     return (f"{it.phase:>12} rollout {it.rollout}: position error {it.position_error * 1e3:.5f} mm "
             f"({100 * it.position_error / max(spec.travel, 1e-300):.3f} % of travel)"
             + (f", yaw error {it.yaw_error_deg:.4f} deg" if spec.yaw_targeted else "")
-            + f", ipopt {it.nlp_iterations} it {'ok' if it.nlp_success else it.nlp_status}")
+            + (", Gauss-Newton step" if it.gauss_newton else
+               f", ipopt {it.nlp_iterations} it {'ok' if it.nlp_success else it.nlp_status}"))
 
 
 def _calibrate(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray, log) -> tuple[PushParameters, Springback]:
@@ -197,7 +221,10 @@ class PlanSession:
     ``after`` executed commands applied once with the press, both meshes.
     """
 
-    def __init__(self, scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), verify: bool = True):
+    def __init__(self, scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), verify: bool = True,
+                 refinement: str = DEFAULT_REFINEMENT):
+        if refinement not in REFINEMENTS:
+            raise ValueError(f"refinement must be one of {REFINEMENTS}, got {refinement!r}")
         self.scenario, self.spec, self.log = scenario, spec or parse_plan(scenario), log
         spec = self.spec
         t0 = time.perf_counter()
@@ -209,6 +236,10 @@ class PlanSession:
         self.calibrations = self.nlp_builds = 0
         self._counted: dict = {}
         self._last: tuple[NlpSolution, np.ndarray, int] | None = None  # solution, modifier, pushes since
+        self.refinement = refinement
+        if refinement == "exact_gradient" and not all(fe.exact for fe in (self.coarse, self.fine) if fe is not None):
+            self.refinement = "modifier"  # a release after the commands, or a frictional pad: no derivatives yet
+            _log_line(log, "refinement: no exact gradient with a release or a frictional pad; modifier adaptation")
         self._calibrate(spec)
         self.advance(after)
         self.build_time = time.perf_counter() - t0
@@ -307,7 +338,7 @@ class PlanSession:
         self.calibration_time = 0.0
         self.nlp.retarget(spec, _start_lag(self.coarse) if self.coarse.relative else np.zeros(3))
         scored = "verification" if self.fine is not None else "planning"
-        loop = _Correction(self.nlp, timings, self.log, scored, modifier, warm)
+        loop = _Correction(self.nlp, timings, self.log, scored, modifier, warm, self.refinement)
         loop.run("planning", self.coarse)
         if self.fine is not None:
             loop.run("verification", self.fine)
@@ -326,11 +357,12 @@ class PlanSession:
             springback=self.springback, solution=best.solution, planning=loop.planning, verified=best.rollout,
             naive=naive_roll, modifier=best.modifier, iterations=tuple(loop.iterations),
             rollouts=self._rollouts_since(),
-            timings=timings, press_reports=pressed.reports, press_steps=pressed.steps,
+            timings=timings, press_reports=pressed.reports, press_steps=pressed.steps, refinement=self.refinement,
         )
 
 
-def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), baseline: bool = True) -> PlanResult:
+def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), baseline: bool = True,
+         refinement: str = DEFAULT_REFINEMENT) -> PlanResult:
     """Plan the commands of the scenario's ``[plan]`` table (see the module docstring):
     a :class:`PlanSession` planned once.
 
@@ -348,6 +380,11 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), b
     baseline : bool
         Also roll the naive commands out on the verification mesh (``result.naive``);
         False leaves ``result.naive`` None and saves that rollout.
+    refinement : str
+        The FE correction (:data:`REFINEMENTS`): ``"modifier"`` adaptation, or
+        ``"exact_gradient"`` (Gauss-Newton with the exact Jacobian; modifier adaptation
+        where the rollouts have no derivatives: a release after the commands, a
+        frictional pad).  ``result.refinement`` says which ran.
 
     Raises
     ------
@@ -356,4 +393,4 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), b
     PlanningError
         An FE step failed.
     """
-    return PlanSession(scenario, spec, log, after).plan(spec, baseline)
+    return PlanSession(scenario, spec, log, after, refinement=refinement).plan(spec, baseline)

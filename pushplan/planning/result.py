@@ -24,7 +24,8 @@ STATUSES = ("converged", "infeasible", "not_converged")
 class Iteration:
     """One FE rollout of the correction loop and the NLP solve behind it.
 
-    ``modifier_used`` is the modifier ``(x, y, yaw)`` (m, rad) the NLP solved with;
+    ``modifier_used`` is the modifier ``(x, y, yaw)`` (m, rad) the NLP solved with (the
+    NLP behind a Gauss-Newton step's commands, ``gauss_newton``);
     errors are of the rollout's final lower-face pose (m, degrees); ``resolved`` is
     false where the previous mesh's plan was rolled out again unchanged.
     """
@@ -42,6 +43,7 @@ class Iteration:
     model_consistency: float
     rollout_wall_s: float
     nlp_wall_s: float
+    gauss_newton: bool = False  # the commands are a Gauss-Newton step on the FE model (exact gradient)
 
     def to_dict(self) -> dict:
         return {**asdict(self), "modifier_used": list(self.modifier_used)}
@@ -87,6 +89,9 @@ class PlanResult:
     timings: dict
     press_reports: tuple[StepReport, ...]
     press_steps: tuple[StepSummary, ...]
+    refinement: str = "modifier"
+    """The FE correction: ``"modifier"`` (modifier adaptation) or ``"exact_gradient"``
+    (Gauss-Newton steps with the exact Jacobian, :mod:`.refine`)."""
 
     @property
     def commands(self) -> np.ndarray:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact import Command, Model, Release, State, StepReport
+from fe_contact import Command, Model, Release, State, StepReport, rollout_derivatives
 
 from ..config.commands import planar_commands
 from ..errors import SolverFailure
@@ -147,6 +147,38 @@ class FeRollouts:
         """
         self._pressed = self._advanced(self.pressed(), tuple(commands))
         self.after += tuple(commands)
+
+    @property
+    def exact(self) -> bool:
+        """Whether :meth:`rollout_with_jacobian` applies: no release after the commands
+        (release steps are not differentiated yet) and a bonded pad."""
+        return self.release is None and getattr(self.model, "pad", None) is None
+
+    def rollout_with_jacobian(self, commands: np.ndarray) -> tuple[Rollout, np.ndarray]:
+        """:meth:`rollout` without a release, and the exact Jacobian (3, K, 3) of the
+        final lower-face pose ``(x, y, yaw)`` with respect to the commands ``(dx, dy,
+        dtheta)`` (:func:`fe_contact.rollout_derivatives`, the same converged steps).
+        ``upper`` holds the plate's pose (the upper face's, for the rigid gripper).
+
+        Raises
+        ------
+        PlanningError
+            An FE step did not converge.
+        """
+        pressed = self.pressed()
+        t0 = time.perf_counter()
+        result = rollout_derivatives(self.model, planar_commands(commands), state=pressed.state, parameters=())
+        if not result.converged:
+            raise PlanningError(f"FE rollout on the {self.label} mesh failed ({result.status.value}): {result.message}")
+        start = pressed.reports[-1]
+        lower = np.vstack([[*start.lower_centroid[:2], start.lower_yaw], result.outputs[:, :3]])
+        upper = np.vstack([pressed.state.plate, [r.plate for r in result.reports]])
+        if self.relative:
+            lower, upper = lower - lower[0], upper - upper[0]
+        self.count += 1
+        roll = Rollout(np.array(commands, float), lower, upper, tuple(result.reports),
+                       tuple(StepSummary.from_report(r) for r in result.reports), time.perf_counter() - t0)
+        return roll, result.d_commands[-1, :3][:, :, [0, 1, 3]]
 
     def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
         """Apply (K, 3) commands ``(dx, dy, dtheta)`` from the start state (``from_rest``:
