@@ -69,7 +69,8 @@ class Rollout:
 class FeRollouts:
     """The FE model on one mesh, pressed once; every rollout branches from the start
     state (``drive`` never mutates its start state): the pressed block, or the state
-    the executed commands left (:meth:`advance`).  Counts rollouts; times the press.
+    the executed commands left (:meth:`advance`).  Counts rollouts; times the press and
+    the executed commands (``press_time``, s).
 
     ``after``: commands already executed after the press (re-planning from a measured
     state); they are applied once after the press, and rollout poses are then relative
