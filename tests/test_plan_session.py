@@ -165,3 +165,42 @@ def test_a_rest_target_falls_back_to_modifier_adaptation():
     scenario = parse_scenario(tomllib.loads(RELEASE_PLAN))
     session = PlanSession(scenario, verify=False, refinement="exact_gradient")
     assert session.refinement == "modifier"
+
+
+def _yaw_case():
+    model = YAW_MODEL.format(young=5e6, mu_x=0.8, mu_y=0.3) + YAW_PLAN
+    return model, YAW_MODEL.format(young=6e6, mu_x=1.04, mu_y=0.39)
+
+
+def _rest_case():
+    from test_plan_release import PLAN as RELEASE_PLAN
+
+    truth = (RELEASE_PLAN.split("[plan]")[0].replace("mu_x = 0.6", "mu_x = 0.78").replace("mu_y = 0.2", "mu_y = 0.26")
+             .replace("young = 2e6", "young = 2.4e6"))
+    return RELEASE_PLAN, truth
+
+
+@pytest.mark.parametrize("case", [_yaw_case, _rest_case], ids=["yaw_target", "rest_target_open_release"])
+def test_warm_replans_of_yaw_and_rest_targets_agree_with_cold_ones(case):
+    """The same as the first test for a yaw target (the start lag in yaw, the torsional
+    calibration) and a yaw target at rest after an open release (every rollout runs the
+    release from the session's state; the exact gradient is not used there)."""
+    model_text, truth_text = case()
+    model = parse_scenario(tomllib.loads(model_text))
+    truth = parse_scenario(tomllib.loads(truth_text))
+    spec = parse_plan(model)
+    first = plan(model, spec, baseline=False)
+    n_press = len(_press(model))
+    run = drive(truth.model(), tuple(_press(model)) + tuple(planar_commands(first.commands[:2])))
+    session = PlanSession(model, spec, verify=False)
+    session.follow(first)
+    for pushes in (1, 2):
+        obs = _observations(run, pushes, n_press)
+        warm, _ = replan(model, spec, obs, baseline=False, session=session)
+        cold, _ = replan(model, spec, obs, baseline=False)
+        assert warm.status == cold.status == "converged"
+        bounds = np.array([spec.max_step, spec.max_step, spec.max_dtheta])
+        np.testing.assert_allclose(warm.commands / bounds, cold.commands / bounds, atol=COMMANDS_AGREE)
+        a, b = warm.verified.final(spec.target_state), cold.verified.final(spec.target_state)
+        assert np.hypot(*(a - b)[:2]) <= warm.spec.tolerance and abs(a[2] - b[2]) <= warm.spec.yaw_tolerance
+    assert session.calibrations == 1 and session.nlp_builds == 1

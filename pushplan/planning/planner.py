@@ -53,9 +53,10 @@ NO_PROGRESS = 0.1
 """An infeasible plan stops when the error changes by less than this fraction of the tolerance."""
 REFINEMENTS = ("modifier", "exact_gradient")
 DEFAULT_REFINEMENT = "modifier"
-CARRY_LAG_FRACTION = 0.1
-"""A session keeps its reduced model while it predicts the FE lag after each executed push
-within this fraction of the FE's lag (:meth:`PlanSession.carries_calibration`)."""
+CARRY_LAG_FRACTION = 0.25
+"""A session keeps its reduced model while it predicts the in-plane FE lag after each
+executed push within this fraction of it (:meth:`PlanSession.carries_calibration`; measured
+misses 1.6-10 % on a yaw target, 2.5-4.4 % at rest after an open release)."""
 PHASE_TIMINGS = ("calibration", "nlp", "planning_rollouts", "verification_rollouts", "naive_verification")
 
 
@@ -212,10 +213,10 @@ class PlanSession:
     re-plan of the last m is a re-solve with new parameter values, warm-started from
     the last plan shifted by the executed pushes, with its modifier).
 
-    The calibration is carried over while the reduced model predicts the FE lag
+    The calibration is carried over while the reduced model predicts the in-plane FE lag
     ``upper - lower`` after each executed push within :data:`CARRY_LAG_FRACTION` of the
-    FE's (yaw too for a yaw target); else it is re-fitted as a cold re-plan fits it
-    (a naive push of the remaining steps from rest) and the NLP rebuilt.
+    FE's; else it is re-fitted as a cold re-plan fits it (a naive push of the remaining
+    steps from rest) and the NLP rebuilt.
 
     :func:`plan` is one session planned once (``pushplan plan``, a cold re-plan):
     ``after`` executed commands applied once with the press, both meshes.
@@ -291,18 +292,20 @@ class PlanSession:
         self._last = (result.solution, np.asarray(result.modifier, float), len(self.executed))
 
     def carries_calibration(self) -> bool:
-        """Whether the reduced model of the last plan predicted the FE lag after the pushes
-        executed since within :data:`CARRY_LAG_FRACTION` of it (yes before a plan or a push)."""
+        """Whether the reduced model of the last plan predicted the in-plane FE lag
+        ``upper - lower`` after the pushes executed since within :data:`CARRY_LAG_FRACTION`
+        of it (yes before a plan or a push).  The yaw lag is not compared: the reduced
+        model misses a loaded block's yaw lag by 15-100 % whatever its calibration from
+        rest (measured on the yaw targets of ``tests/test_plan_session.py``; a refit there
+        moved the compliance < 0.1 % and the torque limit < 7 %), and the FE correction
+        takes that up."""
         if self._last is None or self._last[2] == 0:
             return True
         solution, _, n = self._last
         if n >= len(solution.lower):
             return False
         predicted, fe = solution.upper[n] - solution.lower[n], _start_lag(self.coarse)
-        ok = np.hypot(*(predicted[:2] - fe[:2])) <= CARRY_LAG_FRACTION * np.hypot(*fe[:2])
-        if self.spec.yaw_targeted:
-            ok = ok and abs(predicted[2] - fe[2]) <= CARRY_LAG_FRACTION * abs(fe[2])
-        return bool(ok)
+        return bool(np.hypot(*(predicted[:2] - fe[:2])) <= CARRY_LAG_FRACTION * np.hypot(*fe[:2]))
 
     def continue_from(self, executed) -> None:
         """Execute the pushes of ``executed`` (all pushes after the press, fe_contact
