@@ -220,3 +220,27 @@ def test_an_input_error_inside_the_loop_is_a_bug_not_bad_input(tmp_path, monkeyp
     with pytest.raises(loop.LoopError, match="closed loop step 2: compliance must be > 0"):
         main(["closed-loop", str(model), "--truth", str(truth), "--out", str(tmp_path / "cl"), "--quiet",
               "--no-recording"])
+
+
+def test_the_warm_closed_loop_ends_as_the_cold_one(tmp_path):
+    """Issue 32: re-planning warm (one PlanSession on the planning mesh) or cold (each
+    re-plan from the press on both meshes; here the same 4 x 4 x 2 mesh) ends at the same
+    pose to within the tolerance, both within it, and no worse than the open loop."""
+    import tomllib
+
+    import numpy as np
+
+    from pushplan.config import parse_scenario
+    from pushplan.config.plan import parse_plan
+    from pushplan.identify.closed_loop import closed_loop
+
+    model = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.3, mu_y=0.15) + PLAN))
+    truth = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.39, mu_y=0.195)))
+    spec = parse_plan(model)
+    warm, cold = (closed_loop(model, truth, spec, warm=w) for w in (True, False))
+    a, b = (np.array(d["closed_loop"]["final_pose"][:2]) for d in (warm, cold))
+    assert np.hypot(*(a - b)) <= TOLERANCE
+    assert [it["plan_status"] for it in warm["iterations"]] == [it["plan_status"] for it in cold["iterations"]]
+    for d in (warm, cold):
+        assert d["closed_loop"]["final_error"]["within_tolerance"]
+        assert d["closed_loop"]["final_error"]["position"] <= d["open_loop"]["final_error"]["position"]

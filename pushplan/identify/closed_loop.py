@@ -189,13 +189,15 @@ def _final(truth: Truth, spec: PlanSpec, release) -> np.ndarray:
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
-                noise: NoiseModel | None = None, log=None) -> dict:
+                noise: NoiseModel | None = None, log=None, warm: bool = True) -> dict:
     """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
     and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
 
     After each push the re-plan aims at ``target - bias``, ``bias`` the truth's pose less
     the pose the plan expected after that push.  A rest target is scored on the truth's
-    rest pose after the release (the truth scenario's ``[release]``, else the model's)."""
+    rest pose after the release (the truth scenario's ``[release]``, else the model's).
+    ``warm``: re-plan in one :class:`~pushplan.planning.planner.PlanSession` on the planning
+    mesh (without identification); False re-plans cold, each from the press on both meshes."""
     t_start = time.perf_counter()
     noise = noise or NoiseModel()
     press = press_commands(model_sc)
@@ -206,7 +208,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     open_final = _final(open_truth, spec, release)
     truth = _new_truth(truth_sc, press)
     # the warm planner of the re-plans, on the planning mesh (the bias takes up its error too)
-    session = None if use_identify else PlanSession(model_sc, spec, verify=False)
+    session = PlanSession(model_sc, spec, verify=False) if warm and not use_identify else None
     if session is not None:
         session.follow(first)
     iterations, current, bias = [], model_sc, np.zeros(3)
