@@ -12,7 +12,11 @@ Strategy (docs/planning.md explains why):
    the FE-minus-model final-pose mismatch to the NLP's prediction and re-solve,
    until the FE pose is within tolerance.  First on the planning mesh, then on the
    verification mesh (the scenario's ``[block]`` mesh), whose best rollout is the
-   reported result.
+   reported result.  With ``refinement = "exact_gradient"``, Gauss-Newton steps with
+   the exact Jacobian of the FE final pose instead of the re-solves (:mod:`.refine`).
+
+All of it is a :class:`PlanSession`: :func:`plan` plans one once; the closed loop keeps
+one and re-plans in it after each executed push (warm: nothing above is rebuilt).
 
 The scenario's ``[[load]]`` entries are the press; the ``[plan]`` table is read by
 :mod:`pushplan.config.plan`.  ``target_state`` says which pose the target is for:
