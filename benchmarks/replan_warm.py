@@ -9,6 +9,8 @@ corrections (issue 30 item 4), in one process, one run:
   before (:func:`replan` from the press: both meshes, calibration, NLP build) and cold on
   the planning mesh alone (the same work as the warm re-plan without what it keeps).
   Medians over the pushes, per re-plan wall and process CPU time; the ratios.
+- ``closed_loop``: the whole loop of ``replan`` warm and cold (``closed_loop(...,
+  warm=False)``), ``--repeat`` times alternating: wall and CPU time, final error.
 - ``refinement``: ``plan`` of plan_steel_case3, plan_rubber and plan_yaw (a yaw target)
   with ``refinement = "modifier"`` and ``"exact_gradient"``, alternating, ``--repeat``
   times: wall time, FE rollouts per mesh, NLP solves and the FE-verified final error.
@@ -109,6 +111,24 @@ def measure_replans(truth_friction: float, refinement: str) -> dict:
             "open_loop_final_error": doc["open_loop"]["final_error"], "tolerance": spec.tolerance}
 
 
+def measure_loops(truth_friction: float, repeat: int) -> dict:
+    """The whole closed loop of plan_rubber, warm (as ``closed-loop`` runs) and cold
+    (``closed_loop(..., warm=False)``: every re-plan from the press on both meshes)."""
+    model = load_scenario(SCENARIOS / "plan_rubber.toml")
+    spec = parse_plan(model)
+    truth = _scenario("plan_rubber", friction={"mu_x": model.mu_x * truth_friction, "mu_y": model.mu_y * truth_friction})
+    runs = {"warm": [], "cold": []}
+    for _ in range(repeat):
+        for name in runs:
+            t = _clock()
+            doc = loop.closed_loop(model, truth, spec, warm=name == "warm")
+            wall, cpu = _since(t)
+            runs[name].append({"wall_s": wall, "cpu_s": cpu, "final_error": doc["closed_loop"]["final_error"],
+                               "push_wall_s": [it["wall_time_s"] for it in doc["iterations"]]})
+    return {"runs": runs, "median": {k: {q: float(np.median([x[q] for x in v])) for q in ("wall_s", "cpu_s")}
+                                     for k, v in runs.items()}}
+
+
 def measure_refinements(repeat: int) -> dict:
     out = {}
     for name in REFINEMENT_SCENARIOS:
@@ -144,9 +164,10 @@ def main(argv=None) -> None:
     load_before = os.getloadavg()
     fe_contact.warm_up()
     replans = {m: measure_replans(args.truth_friction, m) for m in ("modifier", "exact_gradient")}
+    loops = measure_loops(args.truth_friction, args.repeat)
     refinements = measure_refinements(args.repeat)
     result = {"load_average_before": load_before, "load_average_after": os.getloadavg(), "cpus": os.cpu_count(),
-              "replan": replans, "refinement": refinements}
+              "replan": replans, "closed_loop": loops, "refinement": refinements}
     for method, r in replans.items():
         print(f"closed loop plan_rubber (truth friction x{args.truth_friction}), warm refinement {method}: "
               f"final error {r['closed_loop_final_error']['position'] * 1e6:.3f} um (tolerance "
@@ -162,6 +183,10 @@ def main(argv=None) -> None:
               f"{m['cold']['wall_s']:.3f} / {m['cold']['cpu_s']:.3f}, cold planning mesh "
               f"{m['cold_planning_mesh']['wall_s']:.3f} / {m['cold_planning_mesh']['cpu_s']:.3f}; cold / warm "
               f"{r['ratio_cold_over_warm']['wall_s']:.1f}x wall, {r['ratio_cold_over_warm']['cpu_s']:.1f}x cpu")
+    for name, runs in loops["runs"].items():
+        m = loops["median"][name]
+        print(f"closed loop {name}: {m['wall_s']:.2f} s wall, {m['cpu_s']:.2f} s cpu (median of {len(runs)}), final "
+              f"error {runs[-1]['final_error']['position'] * 1e6:.3f} um")
     for name, row in refinements.items():
         for method, runs in row["runs"].items():
             x = runs[-1]
