@@ -5,7 +5,9 @@ NLP on it, and the correction loop that verifies the plan in the FE model.
 ``nlp``            the planning NLP on the reduced model (CasADi ``Opti`` + ipopt)
 ``rollouts``       FE rollouts from the pressed state through :func:`pushplan.run.drive`
 ``target``         the naive baseline, pose errors, tolerance test
-``planner``        :func:`plan`, the correction loop
+``planner``        :func:`plan`, the correction loop; :class:`PlanSession`, the warm planner
+                   of the closed loop (re-plans without rebuilding anything)
+``refine``         the Gauss-Newton step with the exact FE Jacobian (``refinement``)
 ``result``         :class:`PlanResult`, typed
 ``document``       ``plan.json`` and ``recording.rrd``
 ``push_model``     :class:`PushModel`, the FE model as a planner plugin with exact Jacobians
@@ -16,10 +18,11 @@ Imports nothing from ``mujoco``, ``studies`` or ``cli``; the ``[plan]`` table is
 
 from ..config.plan import PlanSpec, parse_plan
 from .document import plan_commands_json, plan_document, write_recording
-from .planner import plan
+from .planner import PlanSession, plan
 from .push_model import PushJacobian, PushModel
 from .result import Iteration, PlanResult
 from .rollouts import PlanningError, Rollout
 
-__all__ = ["Iteration", "PlanResult", "PlanSpec", "PlanningError", "PushJacobian", "PushModel", "Rollout", "parse_plan", "plan",
+__all__ = ["Iteration", "PlanResult", "PlanSession", "PlanSpec", "PlanningError", "PushJacobian", "PushModel", "Rollout",
+           "parse_plan", "plan",
            "plan_commands_json", "plan_document", "write_recording"]
