@@ -9,6 +9,7 @@ bad input (nothing written).
 from __future__ import annotations
 
 import sys
+from contextlib import nullcontext
 
 from ..errors import EXIT_SOLVER_FAILURE
 from .simulate import add_memory_flag
@@ -72,8 +73,10 @@ def cmd_plan(args) -> int:
     from ..config.plan import parse_plan
     from ..config.budget import check_memory
     from ..outputs import atomic_write_json
+    from ..outputs.recording_process import RecordingProcess
     from ..outputs.transaction import output_transaction
-    from ..planning import plan, plan_document, write_recording
+    from ..planning import plan, plan_document
+    from ..planning.document import recording_job
 
     scenario, origin = load_scenario(args.scenario), None
     table = scenario.extra.get("plan")
@@ -96,7 +99,9 @@ def cmd_plan(args) -> int:
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    with tx:
+    # the recording's writer imports rerun on the other core while this process plans
+    writer = RecordingProcess() if not args.no_recording else nullcontext()
+    with writer, tx:
         result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
                       refinement=args.refinement)
         doc = plan_document(result)
@@ -110,7 +115,8 @@ def cmd_plan(args) -> int:
         atomic_write_json(tx.path / "plan.json", doc)
         wrote = [tx.out / "plan.json"]
         if not args.no_recording:
-            write_recording(result, tx.path / "recording.rrd", scenario.model())
+            fn, job = recording_job(result, tx.path / "recording.rrd", scenario.model())
+            writer.run(fn, *job)
             wrote.append(tx.out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")
     state = spec.target_state

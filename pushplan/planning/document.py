@@ -117,17 +117,31 @@ def _release_json(result: PlanResult) -> dict:
 
 def write_recording(result: PlanResult, path, verification_model: Model) -> None:
     """``recording.rrd``: the verified FE rollout (press and plan) and the plan overlays."""
-    from ..outputs.recording import Recorder
+    fn, args = recording_job(result, path, verification_model)
+    fn(*args)
 
+
+def recording_job(result: PlanResult, path, verification_model: Model) -> tuple:
+    """:func:`write_recording` as ``(function, arguments)``, the arguments plain picklable
+    data (reports, summaries, arrays): what :class:`~pushplan.outputs.recording_process.
+    RecordingProcess` runs in its child."""
     spec = result.spec
     resolved = {**result.scenario.to_dict(), "load": plan_commands_json(result)}
     reports = (*result.press_reports, *result.verified.reports)
     steps = (*result.press_steps, *result.verified.steps)  # built once, by the driver
-    with Recorder(path, f"plan_{result.scenario.name}", verification_model.mesh, scenario=resolved) as rec:
+    dims = 3 if spec.yaw_targeted else 2
+    overlay = dict(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
+                   verified=result.verified.lower[:, :dims],
+                   naive=None if result.naive is None else result.naive.lower[:, :dims],
+                   cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))
+    return _write_plan_recording, (path, f"plan_{result.scenario.name}", verification_model.mesh, resolved,
+                                   reports, steps, overlay)
+
+
+def _write_plan_recording(path, name: str, mesh, resolved: dict, reports, steps, overlay: dict) -> None:
+    from ..outputs.recording import Recorder
+
+    with Recorder(path, name, mesh, scenario=resolved) as rec:
         for rep, summary in zip(reports, steps, strict=True):
             rec.log_step(rep, summary)
-        dims = 3 if spec.yaw_targeted else 2
-        rec.log_plan(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
-                     verified=result.verified.lower[:, :dims],
-                     naive=None if result.naive is None else result.naive.lower[:, :dims],
-                     cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))
+        rec.log_plan(**overlay)
