@@ -36,7 +36,7 @@ from scipy.optimize import nnls
 
 from fe_contact.io.fclib import read_local_problem
 from fe_contact.contact.friction import project_elliptic_cone
-from fe_contact.contact.local_solver import METHODS, NewtonWorkspace, solve_local
+from fe_contact.contact.local_solver import METHODS, NewtonWorkspace, solve_checked, solve_local
 
 DATA = Path(__file__).resolve().parent / "data" / "fclib"  # copy of ../shared/fclib
 FILES = {
@@ -349,6 +349,28 @@ def test_workspace_krylov_steps_reach_the_same_solutions():
                          workspace=workspace)
     np.testing.assert_allclose(reused.r, fresh.r, rtol=0, atol=AGREE_RTOL * np.abs(fresh.r).max())
     assert workspace.factorisations > factorised
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_solve_checked_is_solve_local_without_the_checks(method):
+    """The FE loop's entry (issue 32) gives the public one's solution bit for bit."""
+    W, q, mx, my = random_problem(8, nc=12)
+    r0 = np.random.default_rng(9).standard_normal(q.shape)
+    public = solve_local(W, q, mx, my, method=method, tol=SOLVE_TOL, r0=r0)
+    checked = solve_checked(W, q, mx, my, r0, method, SOLVE_TOL)
+    assert public.converged and np.array_equal(checked.r, public.r) and checked.iterations == public.iterations
+
+
+def test_workspace_scaling_follows_the_coefficients_and_w():
+    """The workspace keeps the isotropic scaling of one W and coefficients (issue 32):
+    other coefficients or another W on the same workspace give the solutions computed
+    without it, not those of the kept scaling."""
+    W, q, mx, my = random_problem(10, nc=15, c=1.0)
+    workspace = NewtonWorkspace()
+    for W_k, mx_k in ((W, mx), (W, 0.5 * mx), (W + np.eye(W.shape[0]), 0.5 * mx)):
+        plain = solve_local(W_k, q, mx_k, my, method="newton", tol=SOLVE_TOL, assume_spd=True)
+        kept = solve_local(W_k, q, mx_k, my, method="newton", tol=SOLVE_TOL, assume_spd=True, workspace=workspace)
+        assert plain.converged and np.array_equal(kept.r, plain.r)
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 from .alart_curnier import (alart_curnier, factorise_newton_matrix, gmres, jacobian_product, lu_step, newton_matrix,
                             well_conditioned)
-from .friction import _as_coefficients, _modified, _project, project_elliptic_cone, scaling_diagonal
+from .friction import _as_coefficients, _modified, _project, scaling_diagonal
 from .uzawa import uzawa
 
 __all__ = ["LocalSolution", "NewtonWorkspace", "solve_local", "natural_map_residual", "METHODS"]
@@ -99,6 +99,7 @@ class NewtonWorkspace:
     def __init__(self) -> None:
         self._W = None
         self._d = None
+        self._scaled = None  # (W, mx, my, _isotropic_scaling(W, mx, my))
         self.lu = None
         self.factorisations = 0
         self.krylov_steps = 0
@@ -111,15 +112,27 @@ class NewtonWorkspace:
 
     def _bind(self, W, d) -> None:
         """Forget the kept factors unless they belong to this ``W`` and scaling ``d``."""
-        # "same W" = same buffer viewed the same way (np.asarray may rewrap it)
-        same = self._W is not None and (
-            W.__array_interface__["data"][0] == self._W.__array_interface__["data"][0]
-            and W.shape == self._W.shape
-            and W.strides == self._W.strides
-        )
-        if not same or not np.array_equal(self._d, d):
+        if not _same_matrix(W, self._W) or not np.array_equal(self._d, d):
             self._W, self._d = W, d.copy()
             self.lu = None
+
+    def scaling(self, W, mx, my) -> tuple:
+        """:func:`_isotropic_scaling` of ``W`` and the coefficients, kept while they
+        stay the same (a step's local solves share them)."""
+        kept = self._scaled
+        if kept is None or not (_same_matrix(W, kept[0]) and np.array_equal(mx, kept[1])
+                                and np.array_equal(my, kept[2])):
+            kept = self._scaled = (W, mx.copy(), my.copy(), _isotropic_scaling(W, mx, my))
+        return kept[3]
+
+
+def _same_matrix(W, other) -> bool:
+    """The same buffer viewed the same way (np.asarray may rewrap it)."""
+    return other is not None and (
+        W.__array_interface__["data"][0] == other.__array_interface__["data"][0]
+        and W.shape == other.shape
+        and W.strides == other.strides
+    )
 
 
 def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
@@ -238,13 +251,26 @@ def solve_local(
     if workspace is not None and not isinstance(workspace, NewtonWorkspace):
         raise ValueError(f"workspace must be a NewtonWorkspace, got {type(workspace).__name__}")
     Wd, qa, mx, my, ra = _validate(W, q, mu_x, mu_y, r0)
-    if qa.shape[0] == 0:
+    return solve_checked(Wd, qa, mx, my, ra, method, tol, max_iter, assume_spd, workspace)
+
+
+def solve_checked(W, q, mx, my, r0, method: str, tol: float, max_iter: int | None = None, assume_spd: bool = False,
+                  workspace: NewtonWorkspace | None = None) -> LocalSolution:
+    """:func:`solve_local` for input already checked: ``W`` a finite ndarray (3 n,
+    3 n) with a non-negative diagonal, ``q`` and ``r0`` finite (n, 3), ``mx``, ``my``
+    finite >= 0 (n,), ``method`` one of :data:`METHODS`, ``tol > 0``.
+
+    The FE Newton loop calls it every iteration with the tangent's own ``W``
+    (checked when the tangent was built) and the model's coefficients: the checks of
+    :func:`solve_local` (a pass over the ``(3 n)^2`` entries of ``W``, coefficient
+    arrays rebuilt twice) cost 0.1-1 ms a call, a tenth of a small model's step."""
+    if q.shape[0] == 0:
         empty = np.zeros((0, 3))
         return LocalSolution(empty, empty, 0, 0.0, True, (), method)
-    ra = project_elliptic_cone(ra, mx, my)
+    ra = _project(r0, mx, my)
     if method != "newton":
-        return _uzawa(Wd, qa, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter), method)
-    return _newton(Wd, qa, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace)
+        return _uzawa(W, q, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter), method)
+    return _newton(W, q, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace)
 
 
 def _uzawa(W, q, mx, my, r, tol, max_iter, method) -> LocalSolution:
@@ -255,7 +281,7 @@ def _uzawa(W, q, mx, my, r, tol, max_iter, method) -> LocalSolution:
 
 def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
     n = q.shape[0]
-    D, mu, fixed, rho, w_ref = _isotropic_scaling(W, mx, my)
+    D, mu, fixed, rho, w_ref = workspace.scaling(W, mx, my) if workspace is not None else _isotropic_scaling(W, mx, my)
     d = D.ravel()
     qs = q * D
     # A singular W (rigid multibody problems, axes without friction) makes the

@@ -35,7 +35,7 @@ import numpy as np
 from ..fem.elasticity import internal_force
 from ..fem.finite_strain import material_limit
 from ..fem.loads import NO_LOADING, Loading
-from ..contact.local_solver import solve_local
+from ..contact.local_solver import solve_checked
 from .model import IterLog, Model, State, Status
 from .tangent import Tangent, refresh_due, refreshed_tangent
 
@@ -249,11 +249,12 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
     returned."""
     opts = model.options
     best = None
-    attempts = ((opts.local_method, r, True), ("newton", None, False), (FALLBACK[opts.local_method], r, True))
+    attempts = ((opts.local_method, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[opts.local_method], r, True))
     for method, start, spd in attempts:
-        local = solve_local(
-            tangent.W_scaled, q_scaled, model.contacts.mu_x, model.contacts.mu_y,
-            method=method, tol=opts.local_tol, max_iter=opts.local_max_iter, r0=start,
+        # the tangent's W was checked when built, q above, r by the last solve
+        local = solve_checked(
+            tangent.W_scaled, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
+            opts.local_tol, opts.local_max_iter,
             assume_spd=spd,  # K_ff is SPD (with the upper face prescribed, or the springs)
             workspace=workspace if method == "newton" and spd else None,
         )

@@ -35,12 +35,24 @@ def build_parser() -> argparse.ArgumentParser:
         description="Pushing deformable blocks over anisotropic-friction surfaces "
         "(FE model of Feng, Hjiaj, de Saxce, Mroz 2006).",
     )
-    parser.add_argument("--version", action="version", version=f"pushplan {_version()}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: argparse's own action, with the version looked up only when asked
+    (``importlib.metadata`` costs 20-40 ms of every command's start-up)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, help="show program's version number and exit"):
+        super().__init__(option_strings, dest, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser._print_message(f"pushplan {_version()}\n", sys.stdout)
+        parser.exit()
 
 
 def _version() -> str:
