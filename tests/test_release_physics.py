@@ -39,13 +39,13 @@ def test_uzawa_that_fails_falls_back_to_newton():
 
 def test_newton_that_fails_falls_back_to_uzawa(monkeypatch):
     """A local Newton solve that does not converge (forced here) is retried with Uzawa."""
-    solve = newton_module.solve_local
+    solve = newton_module.solve_checked
 
-    def newton_fails(*args, method, **kwargs):
-        solution = solve(*args, method=method, **kwargs)
+    def newton_fails(W, q, mx, my, r0, method, *args, **kwargs):
+        solution = solve(W, q, mx, my, r0, method, *args, **kwargs)
         return replace(solution, converged=False, residual=1.0) if method == "newton" else solution
 
-    monkeypatch.setattr(newton_module, "solve_local", newton_fails)
+    monkeypatch.setattr(newton_module, "solve_checked", newton_fails)
     reference, _ = run(tall_block(local_method="uzawa"), [Command(dz=-1e-4)])
     state, reports = run(tall_block(), [Command(dz=-1e-4)])
     assert reports[0].converged and reports[0].contact_methods == ("uzawa",)
