@@ -111,10 +111,10 @@ def main(argv=None) -> None:
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args(argv)
     trees = {"this": ROOT, **{b.resolve().name: b.resolve() for b in args.base}}
-    load_before = os.getloadavg()
+    load_before, started = os.getloadavg(), time.strftime("%Y-%m-%d %H:%M")
     with tempfile.TemporaryDirectory() as d:
         runs = measure(trees, args.repeat, Path(d))
-    result = {"load_average_before": load_before, "load_average_after": os.getloadavg(), "cpus": os.cpu_count(),
+    result = {"started": started, "load_average_before": load_before, "load_average_after": os.getloadavg(), "cpus": os.cpu_count(),
               "repeat": args.repeat, "bases": {b.resolve().name: str(b.resolve()) for b in args.base},
               "python_dont_write_bytecode": os.environ.get("PYTHONDONTWRITEBYTECODE", ""),
               "figures": summarise(runs)}
