@@ -50,8 +50,8 @@ _KRYLOV_RTOL = 1e-2  # relative residual of the linearised equations in a Krylov
 _KRYLOV_MAX_ITER = 20  # GMRES iterations before a new LU is cheaper (n^2 each against n^3)
 # Below this order an LU costs less than the interpreter work of GMRES.  Measured (issue
 # 32, benchmarks/krylov_order.py, one thread), the local phase of a press and three
-# pushes, Krylov steps over an LU every Newton step: order 147 1.05-1.4x, 243 0.87-1.19x
-# (a draw), 363 0.60x, 507 0.46x, 867 0.29x (the paper case's 1323: local_solvers.py).
+# pushes, Krylov steps over an LU every Newton step: order 147 1.05-1.37x, 243 0.88-1.19x
+# (a draw), 363 0.53-0.60x, 507 0.46-0.50x, 867 0.28-0.29x (1323: local_solvers.py).
 _KRYLOV_MIN_ORDER = 300
 
 
