@@ -42,6 +42,8 @@ A scenario reads::
     steps = 16                                # increments (>= 1; default 16)
     height = 0.0                              # lift: the gripper rises to this height (m, >= 0) once
                                               # it has let go
+    error_tol = 1e-2                          # frictional pad: the release's step control keeps the
+                                              # rest pose's error below this fraction of the lag, (0, 1)
 
 Unknown keys and invalid values raise :class:`~pushplan.errors.InputError` naming the
 key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other commands
@@ -78,6 +80,7 @@ RELEASE_MODES = ("lift", "open")
 DEFAULT_RELEASE_STEPS = 16
 """Release increments when ``[release]`` omits ``steps``: an open release's rest pose
 moves by about 4 % of the lag from 16 to 32 steps on the tests' rubber block."""
+DEFAULT_ERROR_TOL = Release.__dataclass_fields__["error_tol"].default
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
 
@@ -160,6 +163,8 @@ class Scenario:
             optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
             if self.release.height:
                 optional["release"]["height"] = self.release.height
+            if self.release.error_tol != DEFAULT_ERROR_TOL:
+                optional["release"]["error_tol"] = self.release.error_tol
         return {
             "name": self.name,
             "description": self.description,
@@ -267,7 +272,7 @@ def pad_friction_dict(pad: Friction | None):
 def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Friction | None) -> Release | None:
     if "release" not in top:
         return None
-    t = top.table("release", {"mode", "steps", "height"}, required={"mode"})
+    t = top.table("release", {"mode", "steps", "height", "error_tol"}, required={"mode"})
     mode = t.choice("mode", RELEASE_MODES)
     if pad is not None and (mode != "lift" or density <= 0):
         raise InputError(f"release.mode = {mode!r} with a frictional pad (gripper.friction) must be \"lift\" of a "
@@ -282,7 +287,9 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     height = t.number("height", 0.0, nonneg=True)
     if height > 0 and mode != "lift":
         raise InputError(f"release.height = {height} is the height a lift rises to: it needs release.mode = \"lift\"")
-    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height)
+    error_tol = t.number("error_tol", DEFAULT_ERROR_TOL, lo=0.0, hi=1.0)
+    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height,
+                   error_tol=error_tol)
 
 
 def _commands(loads) -> tuple[Command, ...]:

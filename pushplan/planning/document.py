@@ -104,11 +104,13 @@ def _final_poses_json(rollout, spec: PlanSpec) -> dict:
 
 
 def _release_json(result: PlanResult) -> dict:
-    """How the gripper lets go and which pose the target is for."""
+    """How the gripper lets go, which pose the target is for, and ``pad_slip``: how far a frictional pad slid
+    on the upper face during the verified push (m, :attr:`~.rollouts.Rollout.pad_slip`)."""
     release = result.scenario.release
     return {"mode": None if release is None else release.mode,
             "steps": None if release is None else release.steps,
             "gripper_friction": pad_friction_dict(result.scenario.pad),
+            "pad_slip": result.verified.pad_slip,
             "target_state": result.spec.target_state,
             "meaning": ("the target is the lower-face pose at rest after the release" if result.spec.target_state
                         == "rest" else "the target is the lower-face pose under load, the gripper still holding "

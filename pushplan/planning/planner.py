@@ -212,8 +212,13 @@ def _status(spec: PlanSpec, verified: Rollout, reach: str, mesh: str = "verifica
     on = "" if mesh == "verification" else f" (on the {mesh} mesh)"
     if within_tolerance(verified.final(spec.target_state), spec):
         return "converged", "FE-verified final pose within tolerance" + on
-    return "not_converged", (f"FE-verified final pose{on} not within tolerance after {spec.max_rollouts} rollouts "
-                             "per mesh; the best verified plan is reported")
+    message = (f"FE-verified final pose{on} not within tolerance after {spec.max_rollouts} rollouts per mesh; the "
+               "best verified plan is reported")
+    if verified.pad_slip > spec.tolerance:
+        message += (f"; the pad slid {verified.pad_slip * 1e3:.4g} mm on the upper face during the push (the reduced "
+                    "model assumes the upper face follows the command): the pad cannot drag the block there, a "
+                    "stickier pad (gripper.friction above the floor's) is needed")
+    return "not_converged", message
 
 
 class PlanSession:

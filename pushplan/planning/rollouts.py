@@ -46,6 +46,11 @@ class Rollout:
         Lower-face pose ``(x, y, yaw)`` at rest after the release (None without one).
     release_reports : tuple
         The release steps' reports.
+    pad_slip : float
+        Largest in-plane distance over the commands between the pad's
+        commanded position and the block's upper-face centroid, m: how far a
+        frictional pad slid on the upper face (0 for a bonded pad, which the
+        upper face follows; the reduced model assumes it does).
     """
 
     commands: np.ndarray
@@ -56,6 +61,7 @@ class Rollout:
     wall_time: float
     rest: np.ndarray | None = None
     release_reports: tuple[StepReport, ...] = ()
+    pad_slip: float = 0.0
 
     def final(self, target_state: str = "loaded") -> np.ndarray:
         """The final lower-face pose (3,) loaded (after the last command) or at rest."""
@@ -208,4 +214,11 @@ class FeRollouts:
         wall = time.perf_counter() - t0
         self.count += 1
         return Rollout(np.array(commands, float), lower, upper, tuple(loaded), tuple(run.summary.steps[:K]), wall,
-                       rest, tuple(run.reports[K:]))
+                       rest, tuple(run.reports[K:]), self._pad_slip(run.states[1:K + 1], loaded))
+
+    def _pad_slip(self, states, reports) -> float:
+        """:attr:`Rollout.pad_slip` of loaded steps' end ``states`` and ``reports``, m."""
+        if self.model.pad is None or not reports:
+            return 0.0
+        return float(max(np.hypot(*(s.upper_translation[:2] - r.upper_centroid[:2]))
+                         for s, r in zip(states, reports, strict=True)))
