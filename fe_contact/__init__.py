@@ -16,7 +16,7 @@ Neo-Hookean law and ``Model(..., element="fbar")`` an element that does not lock
 ``Model(..., gripper=Gripper(k_xy, k_yaw))`` a compliant gripper,
 ``Model(..., pad=Friction(...))`` a frictional gripper pad (a second contact body,
 :mod:`fe_contact.contact.bodies`), and :mod:`fe_contact.stepping.release` lets go of
-the block (``lift`` or ``open``) and says whether it settled (``release_to_rest``).
+the block (``lift``, up or up and away) and says whether it settled (``release_to_rest``).
 
 Layers, lowest first (a subpackage imports only from those before it)::
 

@@ -92,7 +92,7 @@ def test_mujoco_elements_override_is_checked_where_parsed(capsys):
     assert "argument --elements: must be an integer from 1" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("key", ["release_stiffness", "pad_regularisation"])
+@pytest.mark.parametrize("key", ["pad_regularisation"])
 def test_solver_stiffnesses_are_checked_where_parsed(key):
     from pushplan.config import parse_scenario
     from tiny_inputs import BASE

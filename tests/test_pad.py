@@ -17,6 +17,9 @@ INSENSITIVE = 0.005  # issue: rest pose moves < 0.5 % of the lag when a toleranc
 BOUND = 0.01  # issue: the friction ratio bounds to 1 % of the lag
 WEIGHT_RTOL = 1e-9
 
+DRAGGED = 0.02  # a retreat of half the press per unit rise moves the rest pose by more than this, in lags
+RETREAT = 2e-4  # m, along x, with the rise from the press (0.4 mm) to the reference height
+
 FLOOR = (0.6, 0.2, math.radians(20.0))
 PUSH = Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))
 
@@ -32,13 +35,13 @@ DEFAULT_ERROR_TOL = Release("lift", 1).error_tol
 
 
 @functools.lru_cache(maxsize=None)
-def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0, error_tol=DEFAULT_ERROR_TOL):
+def released(ratio, steps=8, beta=1e-2, tol=1e-10, height=0.0, error_tol=DEFAULT_ERROR_TOL, away=(0.0, 0.0)):
     """Loaded report, release reports and Rest of a press, 2 pushes and a lift of ``steps``."""
     m = model(ratio, beta, tol)
     state, reports = run(m, [Command(dz=-4e-4), PUSH, PUSH])
     assert all(r.converged for r in reports), reports[-1].message
     _, release, rest = release_to_rest(m, state, Release("lift", steps, max_steps=1000, height=height,
-                                                         error_tol=error_tol),
+                                                         error_tol=error_tol, away=away),
                                        reports[-1])
     return reports[-1], release, rest, m
 
@@ -63,13 +66,27 @@ def test_pad_release_settles_on_the_floor():
     assert max(r.newton_iterations for r in reports) <= 15
 
 
-def test_the_gripper_rising_further_changes_nothing():
-    """``Release.height``: once every pad contact is open, the robot's further
-    motion (here to 2 mm above the reference) leaves the block where it is."""
-    _, reports, rest, _ = released(1.0, height=2e-3)
+def test_a_retreat_while_the_pad_is_loaded_drags_the_block_along():
+    """``Release.away``: the gripper retreats 0.2 mm along x while it rises to its
+    reference height (0.5 m per m of rise, from the 0.4 mm press); the loaded pad
+    drags the block with it (measured: 4.9 % of the lag along x)."""
+    moved = rest_xy(1.0, away=(RETREAT, 0.0)) - rest_xy(1.0)
+    print("retreat while loaded moves the rest pose by, in lags:", moved / lag(1.0))
+    assert moved[0] > DRAGGED * lag(1.0) and moved[0] > abs(moved[1])
+
+
+def test_rising_and_retreating_further_once_the_pad_is_open_changes_nothing():
+    """``Release.height`` and ``away``: the same straight path as in the test above,
+    continued to 2 mm above the reference (a retreat of 1.2 mm): once every pad
+    contact is open, the robot's further motion leaves the block where it is."""
+    far = 2e-3
+    away = (RETREAT * (far + 4e-4) / 4e-4, 0.0)
+    _, reports, rest, _ = released(1.0, height=far, away=away)
     assert rest.settled and reports[-2].command.dz > 0 and reports[-1].command == Command()  # rise, settle
+    assert reports[-2].command.dx > 0.5 * away[0]  # most of the retreat after the pad opened
     assert np.abs(reports[-1].upper_force).max() <= 1e-20  # the pad is open
-    np.testing.assert_allclose(rest_xy(1.0, height=2e-3), rest_xy(1.0), rtol=0, atol=1e-9 * lag(1.0))
+    np.testing.assert_allclose(rest_xy(1.0, height=far, away=away), rest_xy(1.0, away=(RETREAT, 0.0)), rtol=0,
+                               atol=1e-9 * lag(1.0))
 
 
 @pytest.mark.parametrize("change", [dict(beta=1e-3), dict(tol=1e-11)])
@@ -117,15 +134,13 @@ def test_bad_pad_input_names_the_value(make, match):
         make()
 
 
-@pytest.mark.parametrize("density, mode", [(0.0, "lift"), (1000.0, "open")])
-def test_a_pad_release_needs_weight_and_a_lift(density, mode):
+def test_a_pad_release_needs_weight():
     """Without weight nothing holds the block once the pad's load is zero (the
-    problem has no solution to converge to): a frictional pad's release needs
-    weight, and lets go by lifting."""
-    m = model(1.0, density=density)
+    problem has no solution to converge to): a frictional pad's release needs weight."""
+    m = model(1.0, density=0.0)
     state, reports = run(m, [Command(dz=-4e-4)])
     with pytest.raises(ValueError, match="weight"):
-        release_to_rest(m, state, Release(mode, 2), reports[-1])
+        release_to_rest(m, state, Release("lift", 2), reports[-1])
 
 
 def test_a_third_contact_body_is_data():

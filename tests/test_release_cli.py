@@ -1,5 +1,6 @@
-"""The release in pushplan (issue 19): the scenario tables, their validation, and
-``simulate``'s rest pose in summary.json; coarse rubber block."""
+"""The release in pushplan (issues 19, 28): the scenario tables, their validation
+(the removed open release refused, naming the key), and ``simulate``'s rest pose in
+summary.json; coarse rubber block."""
 
 import json
 import math
@@ -37,7 +38,7 @@ dy = 5e-4
 dtheta_deg = 2.0
 repeat = 3
 [release]
-mode = "open"
+mode = "lift"
 steps = 4
 """
 
@@ -50,10 +51,12 @@ def simulate(tmp_path, text, name="s"):
 
 
 def test_scenario_tables_round_trip(tmp_path):
-    text = RUBBER + "[gripper]\nstiffness_xy = 4e4\nstiffness_yaw = 5.0\n"
+    text = RUBBER.replace("steps = 4", "steps = 4\nheight = 1e-3\naway = [2e-3, -1e-3]\nerror_tol = 0.05") + \
+        "[gripper]\nstiffness_xy = 4e4\nstiffness_yaw = 5.0\n"
     (tmp_path / "s.toml").write_text(text)
     s = parse_scenario(read_toml(tmp_path / "s.toml"))
-    assert s.density == 1000.0 and s.release.mode == "open" and s.release.steps == 4
+    assert s.density == 1000.0 and s.release.mode == "lift" and s.release.steps == 4
+    assert s.release.away == (2e-3, -1e-3) and s.release.height == 1e-3 and s.release.error_tol == 0.05
     assert s.gripper.stiffness_xy == 4e4
     assert parse_scenario(s.to_dict()) == s
     plain = parse_scenario(read_toml(tmp_path / "s.toml") | {"release": {"mode": "lift"}})
@@ -61,19 +64,23 @@ def test_scenario_tables_round_trip(tmp_path):
 
 
 BAD = {
-    "open without weight": (("density = 1000.0", "density = 0.0"), "release.mode"),
+    "open (removed)": (('mode = "lift"', 'mode = "open"'), "release.mode"),
+    "away not a pair": (("steps = 4", "steps = 4\naway = [1e-3]"), "release.away"),
+    "away not a number": (("steps = 4", "steps = 4\naway = [1e-3, \"x\"]"), "release.away[1]"),
+    "error_tol of 1": (("steps = 4", "steps = 4\nerror_tol = 1.0"), "release.error_tol"),
     "negative density": (("density = 1000.0", "density = -1.0"), "material.density"),
     "negative stiffness": (("[release]", "[gripper]\nstiffness_xy = -1.0\nstiffness_yaw = 1.0\n[release]"),
                            "gripper.stiffness_xy"),
     "zero steps": (("steps = 4", "steps = 0"), "release.steps"),
-    "unknown mode": (('mode = "open"', 'mode = "drop"'), "release.mode"),
+    "unknown mode": (('mode = "lift"', 'mode = "drop"'), "release.mode"),
     "release without a press": (("dz = -4e-4", "dz = 0.0"), "release.mode"),
-    "negative lift height": (('mode = "open"', 'mode = "lift"\nheight = -1e-3'), "release.height"),
+    "negative lift height": (('mode = "lift"', 'mode = "lift"\nheight = -1e-3'), "release.height"),
     "negative pad friction": (("[release]", "[gripper]\nfriction = -0.1\n[release]"), "gripper.friction"),
     "pad friction word": (("[release]", "[gripper]\nfriction = \"sticky\"\n[release]"), "gripper.friction"),
     "negative pad mu_y": (("[release]", "[gripper.friction]\nmu_x = 1.0\nmu_y = -1.0\n[release]"),
                           "gripper.friction.mu_y"),
-    "frictional pad, open": (("[release]", "[gripper]\nfriction = 1.0\n[release]"), "gripper.friction"),
+    "frictional pad, no weight": (("density = 1000.0", "density = 0.0\n[gripper]\nfriction = 1.0"),
+                                  "gripper.friction"),
     "frictional pad, compliant": (("[release]", "[gripper]\nfriction = 1.0\nstiffness_xy = 4e4\n"
                                                 "stiffness_yaw = 5.0\n[release]"), "gripper.friction"),
 }
@@ -93,22 +100,18 @@ def test_bad_release_input_exits_2_naming_the_key(name, tmp_path, capsys):
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
 
 
-def test_simulate_open_release_writes_the_rest_pose(tmp_path):
-    summary = simulate(tmp_path, RUBBER)
-    rest, steps = summary["rest"], summary["steps"]
-    assert set(rest) == REST_KEYS and rest["status"] == "settled" and rest["mode"] == "open"
-    assert len(steps) > 4 + 4  # the release steps are steps like any other
-    opened = [s["command"].get("open") for s in steps[4:8]]
-    assert all(o > 0 for o in opened) and sum(opened) == pytest.approx(1.0, abs=1e-12)
-    weight = 1000.0 * 9.81 * 0.04 * 0.03 * 0.02
-    assert rest["normal_force"] == pytest.approx(weight, rel=1e-8)
-    assert math.hypot(*rest["tangential_force"]) <= REST_FORCE_RTOL * weight
-    assert rest["lower_centroid"] == steps[-1]["lower_centroid"]
-    assert summary["scenario"]["release"] == {"mode": "open", "steps": 4}
+def test_a_command_file_that_opens_the_gripper_exits_2(tmp_path, capsys):
+    """The open release's ``"open"`` command steps are refused, naming the key."""
+    (tmp_path / "s.toml").write_text(RUBBER)
+    (tmp_path / "c.json").write_text(json.dumps({"commands": [{"dz": -4e-4}, {"open": 1.0}]}))
+    rc = main(["simulate", str(tmp_path / "s.toml"), "--commands", str(tmp_path / "c.json"),
+               "--out", str(tmp_path / "out"), "--quiet", "--no-recording"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == EXIT_BAD_INPUT and len(err) == 1 and "commands[1].open" in err[0] and "lift" in err[0], err
 
 
 def test_simulate_lift_rests_under_the_commanded_upper_face(tmp_path):
-    text = RUBBER.replace("density = 1000.0", "density = 0.0").replace('mode = "open"', 'mode = "lift"')
+    text = RUBBER.replace("density = 1000.0", "density = 0.0")
     summary = simulate(tmp_path, text)
     rest, loaded = summary["rest"], summary["steps"][3]
     lag = math.hypot(*loaded["lag"])
@@ -138,7 +141,7 @@ def test_a_block_that_does_not_settle_exits_3(tmp_path, capsys, monkeypatch):
 def test_a_frictional_pad_round_trips_and_its_rest_says_so(tmp_path):
     """``[gripper] friction``: the pad's friction is in the scenario, and the rest
     pose in summary.json says which gripper friction it assumes."""
-    text = RUBBER.replace('mode = "open"', 'mode = "lift"').replace("repeat = 3", "repeat = 1") + \
+    text = RUBBER.replace("repeat = 3", "repeat = 1") + \
         "[gripper.friction]\nmu_x = 0.9\nmu_y = 0.3\nangle_deg = 10.0\n"
     (tmp_path / "s.toml").write_text(text)
     s = parse_scenario(read_toml(tmp_path / "s.toml"))

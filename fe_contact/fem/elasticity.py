@@ -450,8 +450,8 @@ def internal_force_and_tangent(
         Build the geometric stiffness with the positive part of ``S`` only
         (per Gauss point, ``S_+ = V max(Lambda, 0) V^T``): a positive
         semi-definite tangent for a free, prestressed block whose consistent
-        tangent is indefinite in its rigid rotations (an open release,
-        :mod:`fe_contact.stepping.release`).  Not the consistent tangent: Newton
+        tangent is indefinite in its rigid rotations (a block held by a frictional pad,
+        :func:`fe_contact.stepping.held.pad_loading`).  Not the consistent tangent: Newton
         converges linearly with it, to the same solution.
 
     Returns

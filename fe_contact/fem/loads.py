@@ -1,5 +1,5 @@
 """Loads beyond the paper's displacement-driven upper face: self-weight, the
-compliant gripper's springs, and the regularising springs of an open release.
+compliant gripper's springs, and the regularising springs of a block held by a frictional pad.
 
 Self-weight is the body force ``f0`` of the paper's eq. (3) with ``f0 = rho g``,
 ``g = (0, 0, -GRAVITY)``, integrated with the stiffness's quadrature:
@@ -9,22 +9,17 @@ Self-weight is the body force ``f0`` of the paper's eq. (3) with ``f0 = rho g``,
 a dead load (it does not follow the deformation: its reference-configuration
 integral is exact in the total Lagrangian setting).
 
-An open release (the gripper lets go: :mod:`fe_contact.stepping.release`) leaves the
+A frictional pad (:func:`fe_contact.stepping.held.pad_loading`) leaves the
 block held by contact and friction alone, so ``K_ff`` is singular in the
 rigid modes of a block whose contact nodes slip or separate, and the paper's
 flexibility matrix ``W = C K_ff^-1 C^T`` does not exist.  It is regularised by
-a spring on every dof anchored at the *last converged* configuration ``U_n``:
+a spring on every dof anchored at a configuration ``U_a``:
 
-    f_reg = k_a (U - U_n),    k_a = beta k_shear V_a / V,   N,
+    f_reg = k_a (U - U_a),    k_a = beta k_shear V_a / V,   N,
 
 ``k_shear = G A / H`` the block's shear stiffness (N/m), ``V_a`` the nodal
-volume, ``beta = SolverOptions.release_stiffness``.  Its force is a stiffness
-times the step's increment, so it vanishes once the block stops moving:
-settle steps are taken until it is below a tolerance, and the rest
-configuration is then an equilibrium of the unregularised problem.  (It
-works like the mass term of a backward-Euler step with heavy damping: it
-slows the motion, it does not move the rest point except through the path
-that friction remembers, which converges as ``beta -> 0``; see the tests.)
+volume, ``beta = SolverOptions.pad_regularisation``; anchored at each Newton iterate (``Loading.proximal``) the springs
+exert no force at convergence.
 """
 
 from __future__ import annotations

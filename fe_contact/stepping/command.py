@@ -1,5 +1,5 @@
 """The command of one load step (:class:`Command`): the upper face's rigid motion
-increment, or a fraction of the grip released (SI units, radians)."""
+increment (SI units, radians)."""
 
 from __future__ import annotations
 
@@ -29,10 +29,11 @@ class Command:
         Rotation increment about the vertical axis through the current upper-face
         centre, rad, counter-clockwise seen from +z.
     open : float
-        Fraction, in [0, 1], of the gripper's load on the upper face released in
-        this step (an open release, :mod:`fe_contact.stepping.release`).  A step with
-        ``open > 0``, or any step once the grip is partly released, moves no
-        gripper: its ``dx`` ... ``dtheta`` must be 0.
+        Fraction, in [0, 1], of the grip released by the ``open`` release, which
+        was removed (issue 28: its rest pose depended on an assumed pad
+        stiffness and schedule): :func:`~fe_contact.stepping.step.step` refuses
+        ``open > 0`` (``ValueError``); let go with
+        :class:`~fe_contact.stepping.release.Release` ``("lift")``.
     """
 
     dx: float = 0.0

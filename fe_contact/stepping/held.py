@@ -81,7 +81,7 @@ def pad_motion(model: Model, state: State, translation: np.ndarray, rotation: fl
 def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation: float,
                report: StepReport, **changes) -> State:
     """The state a converged step ends in, with its own cache of ``eq``'s
-    tangent; ``changes`` sets ``plate``, ``grip``, ``upper_load``."""
+    tangent; ``changes`` sets ``plate``."""
     return State(
         displacement=eq.displacement,
         reaction=eq.reaction,

@@ -55,8 +55,7 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     """The :class:`~fe_contact.stepping.model.StepReport` of a step from ``state`` under
     ``command`` that ended in ``eq``; ``t0`` is the ``time.perf_counter()`` at
     its start.  ``loading`` is the step's applied loads; ``extra`` holds report
-    fields the caller knows better (``upper_force`` of a released upper face,
-    ``gripper_force``, ``plate``, ``grip``)."""
+    fields the caller knows better (``upper_force``, ``gripper_force``, ``plate``)."""
     extra = dict(extra or {})
     mesh, lower, T = model.mesh, model.mesh.lower, model.frame
     U, n_lower = eq.displacement, model.n_lower
@@ -121,7 +120,6 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         gripper_force=extra.pop("gripper_force", _drive_wrench(model, U, f_int)),
         plate=extra.pop("plate", np.array(state.plate)),
         weight=model.weight,
-        grip=extra.pop("grip", state.grip),
         regularisation_force=float(np.linalg.norm(spring_f)),
         pad_reaction=eq.reaction[n_lower:],
     )

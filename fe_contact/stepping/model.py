@@ -90,10 +90,6 @@ class SolverOptions:
     refresh_ratio : float
         Contraction factor of the relative residual above which a reused
         tangent may be recomputed.
-    release_stiffness : float
-        ``beta`` of the regularising springs of an open release, as a fraction
-        of the block's shear stiffness (:mod:`fe_contact.fem.loads`); smaller is
-        closer to the quasi-static limit and needs more settle steps.
     pad_regularisation : float
         ``beta`` of the regularising springs of a block between the floor and
         a frictional pad (:func:`fe_contact.stepping.held.pad_loading`), as a
@@ -107,7 +103,6 @@ class SolverOptions:
     newton_max_iter: int = 30
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
-    release_stiffness: float = 0.1
     pad_regularisation: float = 1e-2
 
     def __post_init__(self):
@@ -122,9 +117,8 @@ class SolverOptions:
         v = _finite("refresh_ratio", self.refresh_ratio)
         if not 0 < v < 1:
             raise ValueError(f"refresh_ratio must be in (0, 1), got {v}")
-        for name in ("release_stiffness", "pad_regularisation"):
-            if not _finite(name, getattr(self, name)) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not _finite("pad_regularisation", self.pad_regularisation) > 0:
+            raise ValueError(f"pad_regularisation must be > 0, got {self.pad_regularisation}")
         for name in ("local_max_iter", "newton_max_iter"):
             v = getattr(self, name)
             if v is None and name == "local_max_iter":
@@ -380,13 +374,6 @@ class State:
         Actual in-plane pose ``(x, y, theta)`` of the upper-face plate, m, m,
         rad: the commanded one for a rigid drive, behind it by the spring
         deflection for a compliant gripper (default: the commanded pose).
-    grip : float
-        Fraction of the gripper's load still on the upper face: 1 held (the
-        upper face follows the gripper), below 1 an open release under way, 0
-        let go (the upper face is traction-free).
-    upper_load : ndarray, shape (n_upper, 3), or None
-        Nodal forces the gripper applied on the upper face when the open
-        release began, N (None before).
     tangent : TangentCache
         Handle on the factorised tangent and flexibility matrix of an earlier
         configuration, reused by the next step when
@@ -402,18 +389,11 @@ class State:
     step_index: int = 0
     tangent: TangentCache = field(default_factory=TangentCache, compare=False, repr=False)
     plate: np.ndarray | None = None
-    grip: float = 1.0
-    upper_load: np.ndarray | None = None
 
     def __post_init__(self):
         if self.plate is None:
             object.__setattr__(self, "plate", np.array([*np.asarray(self.upper_translation, float)[:2],
                                                         self.upper_rotation]))
-        object.__setattr__(self, "grip", _finite("grip", self.grip))
-        if self.upper_load is not None:
-            load = np.array(self.upper_load, dtype=float)
-            load.setflags(write=False)
-            object.__setattr__(self, "upper_load", load)
         if self.tangent is None:
             object.__setattr__(self, "tangent", TangentCache())
         elif not isinstance(self.tangent, TangentCache):

@@ -1,69 +1,58 @@
-"""Release of the block after the last load step: the gripper lifts, or opens.
+"""Release of the block after the last load step: the gripper lifts, along a path.
 
-``lift``: the gripper keeps its in-plane command and rises: ``steps`` increments
-``dz = d / steps`` summing to the press depth ``d = -t_z`` (``t_z`` the
-upper face's cumulative vertical translation), then further increments of
-``d / steps`` while the block still touches the floor (normal force above
-``LIFT_TOL`` times the loaded one): the block hangs from the plate, its
-contacts open and its elastic lag springs back.  A block with weight is then
-put down again to the height where the plate carries nothing: the plate's
-vertical force ``F(h) = W - N(h)`` (N, ``N`` the floor's normal force at
-plate height ``h``) is brought to zero by regula falsi (bisection when it
-stalls) started from the column's own-weight compression ``h_0 = -W H / (2
-E A)`` (m); the lift stops when ``|F| <= SETTLE_FORCE / 10`` times the
-weight.  (Stopping at the original height would leave the block hanging
-half on the plate: the weight's compression is smaller than one lift step.)
-These are ordinary load steps.
+The robot's motion is the data: the gripper rises from its loaded pose to
+``height`` (m, above the reference pose), taking a horizontal retreat ``away
+= (dx, dy)`` (m) along with the rise on the straight line between the two
+poses: a release command of rise ``dz`` moves the gripper by
 
-``open``: the upper face becomes free (every dof of the block is free) and the
-gripper's hold on it decays to zero.  The hold at grip level ``g`` (1 loaded,
-0 let go) is, per upper-face node ``i`` (N, m):
+    (dx, dy, dz) = (a_x dz / (h_1 - h_0), a_y dz / (h_1 - h_0), dz),      m,
 
-    f_i = g (F_i - k_i (u_i - u_i^L)),    k_i in-plane only,
+``h_0 = -d`` the loaded height (``d`` the press depth, the upper face's
+cumulative vertical translation ``-t_z``) and ``h_1 = height``.  Nothing
+numerical in it sets the answer.
 
-``F_i`` the gripper's nodal forces at the last load step, ``u^L`` the
-displacements there, and ``k_i`` the gripper's in-plane stiffness
-(``Gripper.stiffness_xy``, the block's shear stiffness for a rigid gripper)
-spread over the face by tributary area (:func:`pad_stiffness`).  The preload
-and the stiffness go together: a hold of dead loads alone (``k = 0``) is not a
-well-posed quasi-static problem for a block sliding at the friction limit:
-unloading the press contracts the lower face (Poisson), its nodes slip
-radially, friction no longer balances the dead in-plane load and the block
-slides with nothing to stop it (measured: the rest pose then grows with the
-number of release steps without bound).  With the pad's stiffness the in-plane
-load falls as the block moves, and the rest pose converges as the release is
-refined.  The grip levels are geometric down to ``GRIP_FLOOR`` times
-weight / loaded normal force, then 0 (:func:`open_grips`).
+A **frictional pad** (``Model(pad=Friction(...))``, :mod:`fe_contact.contact.bodies`)
+is lifted until every pad contact is open: its normal load falls to zero,
+and while it falls the pad and the floor each slip when their own friction
+limit is reached (:meth:`ReleaseSchedule._pad_lift`); each step is under
+step-doubling error control (:mod:`fe_contact.stepping.adaptive`).  Once the
+pad is open, the rest of the path moves nothing.
 
-Held by contact and friction alone, the free block's rigid modes make
-``K_ff`` singular wherever its contact nodes slip or separate; regularising
-springs on the contact nodes anchored at the last converged configuration
-(:mod:`fe_contact.fem.loads`) keep the flexibility matrix defined and vanish at
-rest; settle steps (``Command()``) follow the ramp until their force is below
-``settle_tol`` times the weight.  The free block is prestressed, so its
-consistent tangent is indefinite in rigid rotations; open-release steps use the
-tangent with the tensile geometric stiffness only (positive definite with the
-springs; the solution is the same).
+A **bonded pad** (the paper's displacement control) is the exact special
+case of a pad that never slips: ``steps`` increments of ``d / steps`` summing
+to the press depth, then further increments of ``d / steps`` while the
+block still touches the floor (normal force above ``LIFT_TOL`` times the
+loaded one): the block hangs from the plate, its contacts open and its
+elastic lag springs back.  A block with weight is then put down again to the
+height where the plate carries nothing: the plate's vertical force ``F(h) =
+W - N(h)`` (N, ``N`` the floor's normal force at plate height ``h``) is
+brought to zero by regula falsi (bisection when it stalls) started from the
+column's own-weight compression ``h_0 = -W H / (2 E A)`` (m); the lift stops
+when ``|F| <= SETTLE_FORCE / 10`` times the weight.
+
+The earlier ``open`` release (every upper-face traction decaying to zero
+through an assumed pad stiffness and grip schedule) is gone: its rest pose
+depended on that stiffness and schedule (issue 28).  ``Release("open", ...)``
+raises ``ValueError`` saying what to use instead.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..fem.elasticity import internal_force
-from ..fem.loads import Loading
 from .adaptive import controlled_step
 from .release_path import pad_lift_rise, put_down_target
-from .held import next_state
-from .measure import measure
 from .model import Command, Model, State, StepReport
-from .newton import equilibrium
 
-MODES = ("lift", "open")
+MODES = ("lift",)
+OPEN_REMOVED = ("mode 'open' was removed (issue 28): its rest pose depended on an assumed pad stiffness and "
+                "release schedule; let go with mode 'lift' of a frictional pad (Model(pad=Friction(...)); "
+                "in a scenario [gripper] friction = mu), the physical release")
 GRIP_FLOOR = 0.1
-"""Last grip level of an open release before 0, as a fraction of weight / loaded normal force."""
+"""A frictional pad's lift: its load is stepped down geometrically to this fraction of the weight before the zero."""
 LIFT_TOL = 1e-9
 """Floor normal force, relative to the loaded one, below which a lifted block hangs free of the floor."""
 SETTLE_FORCE = 1e-9
@@ -79,19 +68,21 @@ class Release:
 
     Parameters
     ----------
-    mode : {"lift", "open"}
+    mode : {"lift"}
+        The one release: the gripper rises (see the module docstring).
     steps : int
         Increments of the release (>= 1).
-    settle_tol : float
-        ``open``: settle until the regularising spring force (norm over the
-        dofs) is at most this fraction of the weight.
     max_steps : int
-        Limit on the release's steps in all (ramp, extra lift, settle).
+        Limit on the release's steps in all (ramp, extra lift, put-down).
     height : float
-        ``lift``: height above its reference pose the gripper rises to once it
-        has let go (m, >= 0): the robot's motion, which changes nothing once
-        the pad is open; a bonded pad with weight ends where it carries
-        nothing (it cannot rise without lifting the block).
+        Height above its reference pose the gripper rises to (m, >= 0): the
+        robot's motion, which changes nothing once the pad is open; a bonded
+        pad with weight ends where it carries nothing (it cannot rise without
+        lifting the block).
+    away : (float, float)
+        Horizontal retreat ``(dx, dy)`` of the gripper, m, taken along with the
+        rise on the straight line from the loaded pose to ``height`` (module
+        docstring): a loaded frictional pad drags the block with it.
     error_tol : float
         A frictional pad's lift: the error of the rest pose the adaptive steps
         allow, as a fraction of the loaded lag (of the block's size without a
@@ -101,24 +92,28 @@ class Release:
 
     mode: str
     steps: int
-    settle_tol: float = 1e-10
     max_steps: int = 200
     height: float = 0.0
+    away: tuple = (0.0, 0.0)
     error_tol: float = 1e-2
 
     def __post_init__(self):
+        if self.mode == "open":
+            raise ValueError(OPEN_REMOVED)
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("steps", "max_steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        if not 0 < self.settle_tol < 1:
-            raise ValueError(f"settle_tol must be in (0, 1), got {self.settle_tol}")
         if not 0 < self.error_tol < 1:
             raise ValueError(f"error_tol must be in (0, 1), got {self.error_tol}")
         if not (np.isfinite(self.height) and self.height >= 0):
             raise ValueError(f"height must be >= 0 m, got {self.height}")
+        away = np.asarray(self.away, dtype=float) if np.ndim(self.away) == 1 else np.full(3, np.nan)
+        if away.shape != (2,) or not np.all(np.isfinite(away)):
+            raise ValueError(f"away must be a finite (dx, dy) in m, got {self.away!r}")
+        object.__setattr__(self, "away", (float(away[0]), float(away[1])))
 
 
 class ReleaseSchedule:
@@ -130,23 +125,21 @@ class ReleaseSchedule:
     """
 
     def __init__(self, model: Model, release: Release, state: State, loaded: StepReport | None = None):
-        if release.mode == "open" and model.material.density <= 0:
-            raise ValueError("an open release needs a block with weight (material density > 0)")
         self.release = release
         self.weight = model.weight
         self.depth = max(0.0, -float(state.upper_translation[2]))
         self.pad = model.pad is not None
-        if self.pad and (release.mode != "lift" or model.material.density <= 0):
-            raise ValueError("a frictional pad lets go by lifting (mode 'lift') a block with weight (material "
-                             "density > 0): without weight nothing holds the block once the pad's load is zero")
+        if self.pad and model.material.density <= 0:
+            raise ValueError("a frictional pad lets go of a block with weight only (material density > 0): "
+                             "without weight nothing holds the block once the pad's load is zero")
         if self.pad and loaded is None:
             raise ValueError("a frictional pad's release needs the loaded step's report (loaded=...)")
-        if release.mode == "lift" and self.depth == 0:
+        if self.depth == 0:
             raise ValueError("a lift release needs a press before it (the upper face's height must be below "
                              f"its reference one, got {float(state.upper_translation[2])} m)")
         self.loaded_normal = abs(loaded.normal_force) if loaded is not None else 0.0
-        if release.mode == "open":
-            self.grips = open_grips(release.steps, self.weight, self.loaded_normal)
+        # the path: retreat (m) per m of rise, from the loaded height to Release.height
+        self.retreat = np.array(release.away) / (release.height + self.depth)
         lx, ly, lz = model.mesh.size
         self.size = max(lx, ly, lz)
         self.risen = False
@@ -170,12 +163,7 @@ class ReleaseSchedule:
         rel, j = self.release, self.taken
         if j >= rel.max_steps or (report is not None and not report.converged):
             return None
-        if rel.mode == "lift":
-            command = self._lift(j, state, report)
-        elif j < rel.steps:
-            command = Command(open=self.grips[j] - self.grips[j + 1])
-        else:
-            command = None if report.regularisation_force <= rel.settle_tol * self.weight else Command()
+        command = self._lift(j, state, report)
         self.taken += command is not None
         return command
 
@@ -189,16 +177,20 @@ class ReleaseSchedule:
             return controlled_step(model, state, command, step, self.error_tol, self.depth)
         return step(model, state, command, consume=consume)
 
+    def _along(self, dz: float) -> Command:
+        """The gripper's motion of rise ``dz`` (m) along the release's path (module docstring)."""
+        return Command(dx=float(self.retreat[0] * dz), dy=float(self.retreat[1] * dz), dz=dz)
+
     def _lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
         if self.pad:
             return self._pad_lift(j, state, report)
         dz = self.depth / self.release.steps
         self.height_partials = {"current": 1.0, "depth": 1.0 / self.release.steps}
         if j < self.release.steps:
-            return Command(dz=dz)
+            return self._along(dz)
         if not self.lifted_off:
             if report.normal_force > LIFT_TOL * max(self.loaded_normal, self.weight):
-                return Command(dz=dz)
+                return self._along(dz)
             self.lifted_off = True
         if self.weight == 0:
             return self._rise(state)  # nothing to put down: the plate carries nothing off the floor
@@ -212,7 +204,7 @@ class ReleaseSchedule:
         if dz > SETTLE_MOTION * self.size:
             self.risen = True
             self.height_partials = {}  # an absolute height
-            return Command(dz=dz)
+            return self._along(dz)
         if self.risen:
             self.risen = False
             self.height_partials = {"current": 1.0}
@@ -242,7 +234,7 @@ class ReleaseSchedule:
         last = ("h", len(self.pad_points) - 1)
         partials[last] = partials.get(last, 0.0) + 1.0  # the height h + dz
         self.height_partials = partials
-        return Command(dz=dz)
+        return self._along(dz)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
         """The next step of the search for the height where the plate carries
@@ -258,23 +250,7 @@ class ReleaseSchedule:
         slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
         points.append((h, force, touching))
         target, self.height_partials = put_down_target(points, self.weight, self.axial_stiffness, slow, LIFT_TOL)
-        return Command(dz=target - h)
-
-
-def open_grips(steps: int, weight: float, loaded_normal: float) -> np.ndarray:
-    """Grip levels ``g_0 = 1 > g_1 > ... > g_steps = 0`` of an open release, (steps + 1,).
-
-    Geometric down to ``GRIP_FLOOR * weight / loaded_normal`` (where the
-    gripper's load is a small fraction of the weight), then 0: a release of
-    ``dg`` at level ``g`` makes the lower face slip in proportion to
-    ``dg / g`` (the block's load scales with ``g`` while its elastic lag
-    unloads), so uniform steps put most of the slip into the last few and the
-    rest pose would depend on their number; equal ratios spread it evenly.
-    """
-    if steps == 1 or loaded_normal <= 0:
-        return np.linspace(1.0, 0.0, steps + 1)
-    floor = min(0.5, GRIP_FLOOR * weight / loaded_normal)
-    return np.concatenate([np.geomspace(1.0, floor, steps), [0.0]])
+        return self._along(target - h)
 
 
 @dataclass(frozen=True)
@@ -326,7 +302,7 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     is accepted when it is in equilibrium by the same absolute measure as the
     state."""
     scale = schedule.force_scale
-    held = schedule.release.mode == "lift" and model.pad is None
+    held = model.pad is None
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
     _, further = step(model, state, Command())
     _, further_imbalance = _balance(model, further.displacement,
@@ -368,72 +344,3 @@ def _balance(model: Model, U: np.ndarray, reaction: np.ndarray, held: bool, uppe
     if not np.all(np.isfinite(f)):
         return pad, np.inf
     return pad, float(np.linalg.norm(f, axis=1).max())
-
-
-def pad_stiffness(model: Model) -> np.ndarray:
-    """In-plane stiffness of the gripper's hold on each upper-face node (n_upper,), N/m:
-    the gripper's ``stiffness_xy`` (the block's shear stiffness for a rigid
-    gripper) spread over the face by tributary area."""
-    k = model.shear_stiffness if model.gripper.rigid else model.gripper.stiffness_xy
-    return k * model.upper_area / model.upper_area.sum()
-
-
-def gripper_load(model: Model, state: State) -> np.ndarray:
-    """The gripper's hold on the upper face when the release begins, as nodal
-    forces at zero displacement (n_upper, 3), N: its forces in ``state`` (the
-    upper-face rows of ``f_int - f_body``; the contact acts on the lower face
-    only) plus the in-plane pad springs' ``k_i u_i`` (so that the pad's force
-    at displacement ``u`` is ``load - k u``, the force in ``state`` at ``u``
-    of ``state``)."""
-    f_int, _ = internal_force(model.geometry, model.mesh.elements, state.displacement, model.material)
-    if model.body_force is not None:
-        f_int = f_int - model.body_force
-    load = f_int.reshape(-1, 3)[model.mesh.upper]
-    load[:, :2] += pad_stiffness(model)[:, None] * state.displacement[model.mesh.upper, :2]
-    return load
-
-
-def open_loading(model: Model, state: State, grip: float, upper_load: np.ndarray) -> Loading:
-    """Applied loads of an open-release step to ``grip``: the weight, the
-    gripper's hold scaled by ``grip`` (its preload and its in-plane pad
-    springs together, :func:`gripper_load`) and the regularising springs on the
-    contact nodes anchored at ``state`` (:mod:`fe_contact.fem.loads`)."""
-    upper, lower = model.mesh.upper, model.mesh.lower
-    external = np.zeros((model.mesh.n_nodes, 3))
-    external[upper] = grip * upper_load
-    external = external.ravel()
-    if model.body_force is not None:
-        external += model.body_force
-    spring, anchor = np.zeros((model.mesh.n_nodes, 3)), np.array(state.displacement, dtype=float)
-    spring[upper, :2] = grip * pad_stiffness(model)[:, None]
-    anchor[upper] = 0.0
-    beta = model.options.release_stiffness
-    spring[lower] = (beta * model.shear_stiffness * model.lower_area / model.lower_area.sum())[:, None]
-    return Loading(external=external, spring=spring.ravel(), anchor=anchor.ravel(),
-                   diagonal=model.diagonal, tension_only_geometric=True)
-
-
-def open_step(model: Model, state: State, command: Command, t0: float, local_problem_hook=None,
-              consume: bool = False) -> tuple[State, StepReport]:
-    """One step of an open release (see the module docstring); ``command``
-    gives the fraction of the gripper's hold released (``open``) and moves nothing."""
-    if command.moves:
-        raise ValueError("the gripper has let go of the upper face: a command can no longer move it")
-    upper_load = state.upper_load if state.upper_load is not None else gripper_load(model, state)
-    grip = state.grip - command.open
-    grip = 0.0 if grip <= 1e-12 else grip
-    released = model.released()
-    loading = open_loading(model, state, grip, upper_load)
-    U = np.array(state.displacement, dtype=float)
-    eq = equilibrium(released, state, U, local_problem_hook, consume, loading)
-    # the balance in measure: contact + weight + the hold's preload - every spring = 0
-    report = measure(released, state, command, eq, t0, loading, {"upper_force": grip * upper_load.sum(axis=0),
-                                                                 "grip": grip})
-    spring_f = loading.spring_force(eq.displacement).reshape(-1, 3)
-    pad_f = grip * upper_load - spring_f[model.mesh.upper]
-    report = replace(report, upper_force=pad_f.sum(axis=0),
-                     regularisation_force=float(np.linalg.norm(spring_f[model.mesh.lower])))
-    if not report.converged:
-        return state, report
-    return next_state(state, eq, state.upper_translation, state.upper_rotation, report, plate=state.plate,
-                      grip=grip, upper_load=upper_load), report

@@ -91,8 +91,7 @@ class StepReport:
     the rigid drive's upper-face reaction for a rigid gripper."""
     plate: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) plate pose (x, y, theta), m, m, rad
     weight: float = 0.0  # N, the block's self-weight
-    grip: float = 1.0  # fraction of the gripper's load on the upper face (see State.grip)
-    regularisation_force: float = 0.0  # N, norm of the regularising spring forces (open release, frictional pad)
+    regularisation_force: float = 0.0  # N, norm of the regularising spring forces (frictional pad)
     pad_reaction: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     """(n_upper, 3) N, a frictional pad's contact force on each upper-face node, the pad's frame (n, t_x, t_y)
     (empty for a bonded pad)."""

@@ -27,7 +27,6 @@ from .gripper import compliant_step
 from .held import held_step, next_state
 from .model import Command, Model, State, StepReport
 from .predictor import commanded_pose
-from .release import open_step
 
 
 def step(model: Model, state: State, command: Command, local_problem_hook=None, *,
@@ -72,8 +71,6 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     """
     _check_arguments(model, state, command)
     t0 = time.perf_counter()
-    if state.grip < 1.0 or command.open > 0:
-        return open_step(model, state, command, t0, local_problem_hook, consume)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
     if model.pad is not None:
@@ -121,6 +118,9 @@ def _check_arguments(model, state, command) -> None:
         raise ValueError(f"state must be a State, got {type(state).__name__}")
     if not isinstance(command, Command):
         raise ValueError(f"command must be a Command, got {type(command).__name__}")
+    if command.open > 0:
+        raise ValueError(f"command.open = {command.open}: the open release was removed (issue 28); let go with "
+                         "Release('lift') of a frictional pad")
     expected = {"displacement": (model.mesh.n_nodes, 3), "reaction": (model.n_contacts, 3),
                 "upper_translation": (3,), "slip_path": (model.n_lower,)}
     for name, shape in expected.items():

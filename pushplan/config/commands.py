@@ -1,6 +1,6 @@
 """The one codec of upper-face commands between ``fe_contact.Command`` (m, rad) and
-files (``{"dx": m, "dy": m, "dz": m, "dtheta_deg": deg}``, plus ``"open"``, the
-fraction of the grip released, in a step of an open release), used by scenarios,
+files (``{"dx": m, "dy": m, "dz": m, "dtheta_deg": deg}``; the ``"open"`` steps of the
+removed open release are refused, naming the key), used by scenarios,
 ``plan.json``, summaries, recordings and the MuJoCo bridge.
 
 A command file is any JSON object with a ``commands`` list (a ``plan.json``),
@@ -42,8 +42,7 @@ def degrees_exact(angle: float) -> float:
 
 
 def command_to_dict(c: Command) -> dict:
-    d = {"dx": c.dx, "dy": c.dy, "dz": c.dz, "dtheta_deg": degrees_exact(c.dtheta)}
-    return {**d, "open": c.open} if c.open else d
+    return {"dx": c.dx, "dy": c.dy, "dz": c.dz, "dtheta_deg": degrees_exact(c.dtheta)}
 
 
 def command_from_dict(item, key: str) -> Command:
@@ -51,12 +50,10 @@ def command_from_dict(item, key: str) -> Command:
     t = Table(item, key, COMMAND_KEYS + RELEASE_KEYS)
     dx, dy, dz = (t.number(k, 0.0) for k in COMMAND_KEYS[:3])
     dtheta_deg = t.number("dtheta_deg", 0.0, lo=-MAX_TURN_DEG, hi=MAX_TURN_DEG)
-    opened = t.number("open", 0.0, nonneg=True)
-    if opened > 1.0:
-        raise InputError(f"{t.key('open')} must be <= 1, got {opened!r}")
-    if opened and any((dx, dy, dz, dtheta_deg)):
-        raise InputError(f"{key}: a command that opens the gripper cannot also move it")
-    return Command(dx, dy, dz, math.radians(dtheta_deg), opened)
+    if "open" in t:
+        raise InputError(f"{t.key('open')}: the open release was removed (its rest pose depended on an assumed pad "
+                         "stiffness); let go with [release] mode = \"lift\" and gripper.friction")
+    return Command(dx, dy, dz, math.radians(dtheta_deg))
 
 
 def commands_to_list(commands) -> list[dict]:

@@ -36,12 +36,11 @@ A scenario reads::
                                               # {mu_x = .., mu_y = .., angle_deg = ..}: a rigid frictional
                                               # contact body (rigid gripper, lift release with weight)
     [release]                                 # optional: let go after the last load step
-    mode = "open"                             # "lift" (rise until the pad carries no load) or
-                                              # "open" (bonded pad only: every upper-face traction to zero,
-                                              # through a pad stiffness and schedule; needs density > 0)
+    mode = "lift"                             # the gripper rises until the pad carries no load ("open"
+                                              # was removed: its rest pose depended on a pad stiffness)
     steps = 16                                # increments (>= 1; default 16)
-    height = 0.0                              # lift: the gripper rises to this height (m, >= 0) once
-                                              # it has let go
+    height = 0.0                              # the gripper rises to this height (m, >= 0) ...
+    away = [0.0, 0.0]                         # ... retreating (dx, dy) m along with the rise
     error_tol = 1e-2                          # frictional pad: the release's step control keeps the
                                               # rest pose's error below this fraction of the lag, (0, 1)
 
@@ -64,11 +63,11 @@ from fe_contact.fem.material import LAWS
 from fe_contact.stepping.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
-from ..limits import (MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LOCAL_ITER, MAX_NEWTON_ITER,
-                      MAX_STEPS, MIN_TOLERANCE)
+from ..limits import (MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH, MAX_LOCAL_ITER,
+                      MAX_NEWTON_ITER, MAX_STEPS, MIN_TOLERANCE)
 from .commands import MAX_TURN_DEG, commands_to_list
 from .files import read_toml
-from .validate import Table, integer, positive_number
+from .validate import Table, integer, number, positive_number
 
 EXTRA_TABLES = ("plan", "mujoco", "sweep")
 PLAUSIBLE = {"material.young": (1e4, 1e12, "Pa"), "block.size": (1e-4, 10.0, "m")}
@@ -76,10 +75,10 @@ PLAUSIBLE = {"material.young": (1e4, 1e12, "Pa"), "block.size": (1e-4, 10.0, "m"
 foams (~10 kPa) to diamond (~1 TPa); blocks from 0.1 mm to 10 m."""
 TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "solver", "gripper", "release",
             *EXTRA_TABLES}
-RELEASE_MODES = ("lift", "open")
+RELEASE_MODES = ("lift",)
 DEFAULT_RELEASE_STEPS = 16
-"""Release increments when ``[release]`` omits ``steps``: an open release's rest pose
-moves by about 4 % of the lag from 16 to 32 steps on the tests' rubber block."""
+"""Release increments when ``[release]`` omits ``steps`` (a frictional pad's lift refines
+them under step-doubling error control, ``error_tol``)."""
 DEFAULT_ERROR_TOL = Release.__dataclass_fields__["error_tol"].default
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
@@ -163,6 +162,8 @@ class Scenario:
             optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
             if self.release.height:
                 optional["release"]["height"] = self.release.height
+            if any(self.release.away):
+                optional["release"]["away"] = list(self.release.away)
             if self.release.error_tol != DEFAULT_ERROR_TOL:
                 optional["release"]["error_tol"] = self.release.error_tol
         return {
@@ -213,9 +214,8 @@ def _solver(table) -> SolverOptions:
     for k, most in (("local_max_iter", MAX_LOCAL_ITER), ("newton_max_iter", MAX_NEWTON_ITER)):
         if k in t:
             t.integer(k, minimum=1, maximum=most)
-    for k in ("release_stiffness", "pad_regularisation"):
-        if k in t:
-            t.number(k, positive=True)
+    if "pad_regularisation" in t:
+        t.number("pad_regularisation", positive=True)
     return SolverOptions(**values)  # every field checked above: a ValueError here is a bug
 
 
@@ -272,24 +272,26 @@ def pad_friction_dict(pad: Friction | None):
 def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Friction | None) -> Release | None:
     if "release" not in top:
         return None
-    t = top.table("release", {"mode", "steps", "height", "error_tol"}, required={"mode"})
+    t = top.table("release", {"mode", "steps", "height", "away", "error_tol"}, required={"mode"})
+    if t.data.get("mode") == "open":
+        raise InputError('release.mode = "open" was removed: its rest pose depended on an assumed pad stiffness '
+                         'and schedule; use mode = "lift" with gripper.friction = mu (the pad as a frictional contact)')
     mode = t.choice("mode", RELEASE_MODES)
-    if pad is not None and (mode != "lift" or density <= 0):
-        raise InputError(f"release.mode = {mode!r} with a frictional pad (gripper.friction) must be \"lift\" of a "
-                         "block with weight (material.density > 0): nothing holds a weightless block once the "
-                         "pad's load is zero")
-    if mode == "open" and density <= 0:
-        raise InputError('release.mode = "open" needs a block with weight: set material.density > 0')
+    if pad is not None and density <= 0:
+        raise InputError("release with a frictional pad (gripper.friction) needs a block with weight "
+                         "(material.density > 0): nothing holds a weightless block once the pad's load is zero")
     depth = sum(c.dz for c in commands)
     if depth >= 0:
         raise InputError(f"release.mode = {mode!r} needs a press before it: the loads' dz must sum to < 0 m, "
                          f"got {depth:g}")
-    height = t.number("height", 0.0, nonneg=True)
-    if height > 0 and mode != "lift":
-        raise InputError(f"release.height = {height} is the height a lift rises to: it needs release.mode = \"lift\"")
+    height = t.number("height", 0.0, nonneg=True, hi=MAX_LENGTH)
+    away = t.data.get("away", [0.0, 0.0])
+    if not isinstance(away, list) or len(away) != 2:
+        raise InputError(f"release.away must be [dx, dy] in m, got {away!r}")
+    away = tuple(number(f"release.away[{i}]", v, lo=-MAX_LENGTH, hi=MAX_LENGTH) for i, v in enumerate(away))
     error_tol = t.number("error_tol", DEFAULT_ERROR_TOL, lo=0.0, hi=1.0)
     return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height,
-                   error_tol=error_tol)
+                   away=away, error_tol=error_tol)
 
 
 def _commands(loads) -> tuple[Command, ...]:

@@ -5,8 +5,8 @@ the upper face's ``u`` by a fraction of the lag (positions m, yaw rad):
 
     rest = l + s (u - l),    s = (s_xy, s_xy, s_yaw),
 
-``s = 1`` for a lift (the block ends stress-free under the upper face), ``s ~ 0``
-for an open gripper on a block held by friction.  ``s`` is the least-squares
+``s = 1`` for a bonded lift (the block ends stress-free under the upper face), ``s ~ 0``
+for a frictional pad much slipperier than the floor.  ``s`` is the least-squares
 ratio of the FE rest displacement to the lag over calibration rollouts.
 """
 
