@@ -115,7 +115,9 @@ def test_a_pad_much_stickier_than_the_floor_is_the_bonded_lift():
 
 
 def test_a_pad_much_slipperier_than_the_floor_leaves_the_lower_face_where_it_was():
-    loaded, reports, _, _ = released(0.01)
+    """The release's error control at 0.1 of the lag (the lower face barely moves:
+    0.47 % of the lag at error_tol 0.1 and at the default 0.01), a third of the cost."""
+    loaded, reports, _, _ = released(0.01, error_tol=0.1)
     moved = np.linalg.norm(reports[-1].lower_centroid[:2] - loaded.lower_centroid[:2])
     assert moved <= BOUND * np.linalg.norm(loaded.lag)
     # a slippery pad cannot push: it slides over the upper face, the block stays
