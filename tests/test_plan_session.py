@@ -180,10 +180,10 @@ def _rest_case():
     return RELEASE_PLAN, truth
 
 
-@pytest.mark.parametrize("case", [_yaw_case, _rest_case], ids=["yaw_target", "rest_target_open_release"])
+@pytest.mark.parametrize("case", [_yaw_case, _rest_case], ids=["yaw_target", "rest_target_pad_release"])
 def test_warm_replans_of_yaw_and_rest_targets_agree_with_cold_ones(case):
     """The same as the first test for a yaw target (the start lag in yaw, the torsional
-    calibration) and a yaw target at rest after an open release (every rollout runs the
+    calibration) and a yaw target at rest after a frictional pad's release (every rollout runs the
     release from the session's state; the exact gradient is not used there)."""
     model_text, truth_text = case()
     model = parse_scenario(tomllib.loads(model_text))

@@ -60,7 +60,7 @@ DEFAULT_REFINEMENT = "modifier"
 CARRY_LAG_FRACTION = 0.25
 """A session keeps its reduced model while it predicts the in-plane FE lag after each
 executed push within this fraction of it (:meth:`PlanSession.carries_calibration`; measured
-misses 1.6-10 % on a yaw target, 2.5-4.4 % at rest after an open release)."""
+misses 1.6-10 % on a yaw target, 2.5-4.4 % at rest after the since removed open release)."""
 PHASE_TIMINGS = ("calibration", "nlp", "planning_rollouts", "verification_rollouts", "naive_verification")
 
 
