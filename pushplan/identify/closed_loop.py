@@ -8,7 +8,8 @@ Each re-plan aims at ``target - b``, with ``b`` (m, m, rad) the truth's pose aft
 last push less the pose the plan behind it expected: the error of the model on the
 truth is taken to persist from one push to the next (modifier adaptation, here on the
 measured block), within a quarter of the tolerances (:data:`REPLAN_TOLERANCE`).  A
-rest target is scored on the truth's own release.  The re-identification in the loop
+rest target is scored on the truth's own release, and its ``b`` is what the loaded
+discrepancy leaves after the spring-back (:func:`modifier`).  The re-identification in the loop
 skips the refined-mesh and profile checks of :mod:`.uncertainty` (only its estimates
 are used; the chi-square rule stays).
 
@@ -148,17 +149,34 @@ REPLAN_TOLERANCE = 0.25
 model does not predict of the truth's next push."""
 
 
-def _shifted(spec: PlanSpec, bias: np.ndarray) -> PlanSpec:
-    """``spec`` aiming at ``target - bias``: the truth's error over the model's on the last
-    push (``bias``, (3,) m, m, rad) taken to persist (modifier adaptation on the truth),
-    within :data:`REPLAN_TOLERANCE` of the tolerances."""
+def modifier(spec: PlanSpec, bias: np.ndarray, drift: np.ndarray, springback: np.ndarray) -> np.ndarray:
+    """The shift (3,) (m, m, rad) of a re-plan's target that makes the truth end on it.
+
+    A re-plan aims at ``target - shift`` relative to the observed (loaded) pose ``p_t``
+    from the model's state ``p_m``; ``drift = p_t - p_m`` is the sum of the pushes'
+    errors, ``bias`` the last one's (taken to persist, modifier adaptation on the
+    truth).  A loaded target: ``shift = bias``.  A rest target ``R = p + s (u - p)``
+    (``s``, (3,), the spring-back fractions of the plan's calibration,
+    :class:`~pushplan.planning.springback.Springback`): the truth rests ``(1 - s)``
+    of its loaded discrepancy away from the model, so ``shift = (1 - s) bias - s
+    drift``; with a bonded lift (``s = 1``) the rest is the commanded pose and the
+    loaded discrepancy must be taken back out, not added."""
+    if spec.target_state != "rest":
+        return bias
+    s = np.asarray(springback, float)
+    return (1.0 - s) * bias - s * drift
+
+
+def _shifted(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
+    """``spec`` aiming at ``target - shift`` (:func:`modifier`), within
+    :data:`REPLAN_TOLERANCE` of the tolerances."""
     mask = np.array([1.0, 1.0, float(spec.yaw_targeted)])
-    return dataclasses.replace(spec, target=tuple(float(v) for v in np.array(spec.target) - mask * bias),
+    return dataclasses.replace(spec, target=tuple(float(v) for v in np.array(spec.target) - mask * shift),
                                tolerance=REPLAN_TOLERANCE * spec.tolerance,
                                yaw_tolerance=REPLAN_TOLERANCE * spec.yaw_tolerance)
 
 
-def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, session):
+def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, shift, session):
     """Plan (or re-plan) with the current model and execute the next push on the truth
     (re-plans in the warm ``session`` unless identification changes the model)."""
     identified = None
@@ -174,7 +192,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, sessi
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate, strict=True)))
         # the loop never reads the naive rollout: no baseline
         # warm in the session; cold with identification (another model each push)
-        result, _ = replan(model_sc, _shifted(spec, bias), obs, baseline=False, session=session)
+        result, _ = replan(model_sc, _shifted(spec, shift), obs, baseline=False, session=session)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth
@@ -193,8 +211,10 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
     and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
 
-    After each push the re-plan aims at ``target - bias``, ``bias`` the truth's pose less
-    the pose the plan expected after that push.  A rest target is scored on the truth's
+    After each push the re-plan aims at ``target - shift`` (:func:`modifier`): for a loaded
+    target ``bias``, the truth's pose less the pose the plan expected after that push; for a
+    rest target that bias and the model's loaded discrepancy weighed by the plan's
+    spring-back.  A rest target is scored on the truth's
     rest pose after the release (the truth scenario's ``[release]``, else the model's).
     ``warm``: re-plan in one :class:`~pushplan.planning.planner.PlanSession` on the planning
     mesh (without identification); False re-plans cold, each from the press on both meshes."""
@@ -211,15 +231,20 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     session = PlanSession(model_sc, spec, verify=False) if warm and not use_identify else None
     if session is not None:
         session.follow(first)
-    iterations, current, bias = [], model_sc, np.zeros(3)
+    iterations, current, bias, drift = [], model_sc, np.zeros(3), np.zeros(3)
     for k in range(spec.steps):
         t0 = time.perf_counter()
         try:
             current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
-                                                                  noise, log, bias, session)
+                                                                  noise, log, bias,
+                                                                  modifier(spec, bias, drift, first.springback.fractions),
+                                                                  session)
         except InputError as e:
             raise LoopError(f"closed loop step {k + 1}: {e}") from e
         bias = truth.pose - planned[1] + bias  # planned[1] holds the old bias
+        # the model's loaded discrepancy from the truth; an identified model is fitted to the
+        # observed poses, so its own is taken as none
+        drift = np.zeros(3) if use_identify else drift + bias
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
                                     sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
