@@ -173,18 +173,18 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     ``state`` is held fixed: its own dependence on the parameters is not
     included.  To include it, give instead ``start``, an earlier converged
     result of this model (e.g. the press), whose final state and parameters
-    the rollout continues from.  With ``release`` (a bonded ``"lift"``), the
-    block is let go after the commands (:class:`~fe_contact.stepping.release.ReleaseSchedule`)
-    and the outputs have one more row: the rest, after the release (module
-    docstring: the release's heights are held fixed, the last one set by the
-    root ``F_z = 0``).
+    the rollout continues from.  With ``release`` (a ``"lift"`` straight up, of
+    the bonded or a frictional pad), the block is let go after the commands
+    (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
+    have one more row: the rest, after the release (module docstring: each
+    height differentiated as the schedule chose it, the put-down's root by the
+    implicit function theorem on ``F_z = 0``).
 
     Raises
     ------
     ValueError
-        Not a Model or Commands, a release command, an open release or a
-        frictional pad, an unknown parameter, or a gripper stiffness with a
-        rigid gripper.
+        Not a Model or Commands, a release command, a release with a retreat,
+        an unknown parameter, or a gripper stiffness with a rigid gripper.
     """
     if start is not None:
         if not isinstance(start, RolloutDerivatives) or not start.converged:
