@@ -232,12 +232,13 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     if session is not None:
         session.follow(first)
     iterations, current, bias, drift = [], model_sc, np.zeros(3), np.zeros(3)
+    springback = first.springback.fractions  # of the latest plan's calibration (re-identified models' too)
     for k in range(spec.steps):
         t0 = time.perf_counter()
         try:
             current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
                                                                   noise, log, bias,
-                                                                  modifier(spec, bias, drift, first.springback.fractions),
+                                                                  modifier(spec, bias, drift, springback),
                                                                   session)
         except InputError as e:
             raise LoopError(f"closed loop step {k + 1}: {e}") from e
@@ -245,6 +246,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
         # the model's loaded discrepancy from the truth; an identified model is fitted to the
         # observed poses, so its own is taken as none
         drift = np.zeros(3) if use_identify else drift + bias
+        springback = result.springback.fractions
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
                                     sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
