@@ -68,6 +68,11 @@ def commands_from_list(items, key: str = "commands") -> tuple[Command, ...]:
     return tuple(command_from_dict(item, f"{key}[{i}]") for i, item in enumerate(items))
 
 
+PLANAR_COMPONENTS = [0, 1, 3]
+"""Where the in-plane increments ``(dx, dy, dtheta)`` of :func:`planar_commands` sit among
+a Command's ``(dx, dy, dz, dtheta)`` (the columns of ``fe_contact.rollout_derivatives``)."""
+
+
 def planar_commands(array) -> tuple[Command, ...]:
     """Commands from an (K, 3) array of in-plane increments ``(dx, dy, dtheta)`` (m, rad)."""
     return tuple(Command(dx=float(c[0]), dy=float(c[1]), dtheta=float(c[2])) for c in np.asarray(array, float))

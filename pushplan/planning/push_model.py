@@ -29,18 +29,15 @@ import casadi
 import numpy as np
 
 from fe_contact import Model, State, rollout_derivatives
-from fe_contact.stepping.derivatives import applicable_parameters
+from fe_contact.stepping.derivatives import PARAMETERS, applicable_parameters  # noqa: F401 (PARAMETERS: re-exported)
 
-from ..config.commands import planar_commands
+from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..config.plan import press_commands
 from ..config.scenario import Scenario
 from ..errors import InputError
 from ..run import drive
 from .rollouts import PlanningError
 
-PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density", "stiffness_xy", "stiffness_yaw")
-"""Physical parameters with derivatives (SI, ``angle`` in rad)."""
-_PLANAR = [0, 1, 3]  # (dx, dy, dtheta) among fe_contact's (dx, dy, dz, dtheta)
 
 
 @dataclass(frozen=True)
@@ -203,7 +200,7 @@ class PushModel:
         if not result.converged:
             raise PlanningError(f"FE rollout failed: {result.message}")
         self.rollouts_run += 1
-        d_cmd = result.d_commands[:, :, :, _PLANAR]
+        d_cmd = result.d_commands[:, :, :, PLANAR_COMPONENTS]
         jac = PushJacobian(result.outputs[:, :3], result.outputs[:, 3:6], d_cmd[:, :3], result.d_parameters[:, :3],
                            d_cmd[:, 3:6], result.parameters)
         self._last = (key, jac)

@@ -10,7 +10,7 @@ import numpy as np
 
 from fe_contact import Command, Model, Release, State, StepReport, rollout_derivatives
 
-from ..config.commands import planar_commands
+from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..errors import SolverFailure
 from ..run import Run, StepSummary, drive
 
@@ -185,7 +185,7 @@ class FeRollouts:
         self.count += 1
         roll = Rollout(np.array(commands, float), lower, upper, tuple(result.reports),
                        tuple(StepSummary.from_report(r) for r in result.reports), time.perf_counter() - t0)
-        return roll, result.d_commands[-1, :3][:, :, [0, 1, 3]]
+        return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 
     def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
         """Apply (K, 3) commands ``(dx, dy, dtheta)`` from the start state (``from_rest``:
