@@ -126,8 +126,6 @@ def test_dropping_the_slip_rule_friction_term_fails(monkeypatch):
 
 def test_invalid_arguments():
     m = model()
-    with pytest.raises(ValueError, match="opens the gripper"):
-        rollout_derivatives(m, [PRESS, Command(open=1.0)])
     with pytest.raises(ValueError, match="rigid gripper"):
         rollout_derivatives(m, [PRESS], parameters=("stiffness_xy",))
     with pytest.raises(ValueError, match="unknown parameter"):

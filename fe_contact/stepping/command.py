@@ -28,27 +28,16 @@ class Command:
     dtheta : float
         Rotation increment about the vertical axis through the current upper-face
         centre, rad, counter-clockwise seen from +z.
-    open : float
-        Fraction, in [0, 1], of the grip released by the ``open`` release, which
-        was removed (issue 28: its rest pose depended on an assumed pad
-        stiffness and schedule): :func:`~fe_contact.stepping.step.step` refuses
-        ``open > 0`` (``ValueError``); let go with
-        :class:`~fe_contact.stepping.release.Release` ``("lift")``.
     """
 
     dx: float = 0.0
     dy: float = 0.0
     dz: float = 0.0
     dtheta: float = 0.0
-    open: float = 0.0
 
     def __post_init__(self):
-        for name in ("dx", "dy", "dz", "dtheta", "open"):
+        for name in ("dx", "dy", "dz", "dtheta"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
-        if not 0.0 <= self.open <= 1.0:
-            raise ValueError(f"open must be in [0, 1], got {self.open}")
-        if self.open > 0 and any((self.dx, self.dy, self.dz, self.dtheta)):
-            raise ValueError("a command that opens the gripper cannot also move it (dx, dy, dz, dtheta must be 0)")
 
     @property
     def moves(self) -> bool:

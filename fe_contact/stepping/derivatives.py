@@ -154,8 +154,6 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
             raise ValueError(f"commands[{k}] must be a Command, got {type(c).__name__}")
-        if c.open > 0:
-            raise ValueError(f"commands[{k}] opens the gripper: release steps are not differentiated")
     parameters = applicable_parameters(model) if parameters is None else tuple(parameters)
     for p in parameters:
         if p not in PARAMETERS:
@@ -183,7 +181,7 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     Raises
     ------
     ValueError
-        Not a Model or Commands, a release command, a release with a retreat,
+        Not a Model or Commands, a release with a retreat,
         an unknown parameter, or a gripper stiffness with a rigid gripper.
     """
     if start is not None:

@@ -118,9 +118,6 @@ def _check_arguments(model, state, command) -> None:
         raise ValueError(f"state must be a State, got {type(state).__name__}")
     if not isinstance(command, Command):
         raise ValueError(f"command must be a Command, got {type(command).__name__}")
-    if command.open > 0:
-        raise ValueError(f"command.open = {command.open}: the open release was removed (issue 28); let go with "
-                         "Release('lift') of a frictional pad")
     expected = {"displacement": (model.mesh.n_nodes, 3), "reaction": (model.n_contacts, 3),
                 "upper_translation": (3,), "slip_path": (model.n_lower,)}
     for name, shape in expected.items():
