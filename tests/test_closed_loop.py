@@ -306,15 +306,15 @@ def test_a_rest_target_after_a_bonded_lift_ends_no_worse_than_the_open_loop(tmp_
 
 
 def test_the_rest_modifier_between_its_two_bounds():
+    from types import SimpleNamespace
+
     from pushplan.identify.closed_loop import modifier
 
-    class Spec:
-        target_state = "rest"
-
+    rest, loaded = SimpleNamespace(target_state="rest"), SimpleNamespace(target_state="loaded")
     bias, drift = np.array([1.0, 2.0, 0.1]), np.array([5.0, -3.0, 0.2])
     # a pad that lets the block spring back fully (the bonded lift): the discrepancy comes out
-    assert np.allclose(modifier(Spec, bias, drift, np.ones(3)), -drift)
+    assert np.allclose(modifier(rest, bias, drift, np.ones(3)), -drift)
     # none springs back: the last push's error persists, as for a loaded target
-    assert np.allclose(modifier(Spec, bias, drift, np.zeros(3)), bias)
-    Spec.target_state = "loaded"
-    assert np.allclose(modifier(Spec, bias, drift, np.ones(3)), bias)
+    assert np.allclose(modifier(rest, bias, drift, np.zeros(3)), bias)
+    assert np.allclose(modifier(rest, bias, drift, np.full(3, 0.25)), 0.75 * bias - 0.25 * drift)
+    assert np.allclose(modifier(loaded, bias, drift, np.ones(3)), bias)
