@@ -1,5 +1,7 @@
 # Two entry points (see README): `make demo` and `make test`.
-# Each creates .venv on first use and (re)installs the project when pyproject.toml changes.
+# Each creates .venv on first use and (re)installs the project when pyproject.toml, setup.py
+# or a compiled kernel's source (fe_contact/*/_kernels.pyx) changes: an editable install
+# builds the kernels in place once and does not rebuild them by itself.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -13,7 +15,7 @@ export MKL_NUM_THREADS ?= 1
 
 .PHONY: demo test test-slow lint bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py $(wildcard fe_contact/*/_kernels.pyx)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'

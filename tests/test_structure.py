@@ -112,6 +112,53 @@ def test_modules_and_functions_are_small(package):
     assert not long, "\n".join(long)
 
 
+def kernel_sources() -> list[Path]:
+    """fe_contact's Cython kernels (issue 32), built at install by setup.py."""
+    return sorted((ROOT / "fe_contact").rglob("*.pyx"))
+
+
+def test_compiled_kernels_follow_the_module_rules_and_are_built():
+    """Each ``.pyx`` lives in a layer of fe_contact, imports (``import``, ``cimport``,
+    ``from``) nothing of a higher layer nor of pushplan/mujoco/rerun, is <= 500 lines
+    with top-level functions <= 80, and its extension module imports from the file
+    built beside it, no older than the source (an editable install does not rebuild:
+    ``make`` reinstalls when a ``.pyx`` changes)."""
+    import importlib
+    import importlib.machinery
+
+    assert len(kernel_sources()) == 2
+    wrong = []
+    for path in kernel_sources():
+        name = module_name(path)
+        own = layer(name, "fe_contact")
+        text = path.read_text()
+        lines = text.splitlines()
+        if own not in FE_LAYERS:
+            wrong.append(f"{name}: not in a layer")
+        for mod in re.findall(r"^\s*(?:from|c?import)\s+([\w.]+)", text, re.M):
+            level = len(mod) - len(mod.lstrip("."))
+            package = name.split(".")[:-1]
+            absolute = ".".join([*package[:len(package) - level + 1], mod[level:]]) if level else mod
+            other = layer(absolute, "fe_contact")
+            if mod.split(".")[0] in ("pushplan", "mujoco", "rerun") or (
+                    other in FE_LAYERS and FE_LAYERS.index(other) > FE_LAYERS.index(own)):
+                wrong.append(f"{name} imports {mod}")
+        if len(lines) > MAX_MODULE_LINES:
+            wrong.append(f"{name}: {len(lines)} lines")
+        starts = [i for i, line in enumerate(lines) if re.match(r"(c?p?def) ", line)]
+        for i in starts:
+            end = next((j for j in range(i + 1, len(lines)) if lines[j][:1] not in ("", " ", "#")), len(lines))
+            while not lines[end - 1].strip():
+                end -= 1
+            if end - i > MAX_FUNCTION_LINES:
+                wrong.append(f"{name}:{i + 1}: {end - i} lines")
+        built = importlib.import_module(name).__file__
+        if not built.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)) or \
+                Path(built).stat().st_mtime < path.stat().st_mtime:
+            wrong.append(f"{name}: {built} is not built from {path.name} (reinstall: make .venv/.installed)")
+    assert not wrong, "\n".join(wrong)
+
+
 def sources_matching(pattern: str, package="pushplan") -> list[str]:
     regex = re.compile(pattern)
     return sorted(str(p.relative_to(ROOT)) for p in modules(package) if regex.search(p.read_text()))

@@ -22,9 +22,9 @@ import math
 
 import numpy as np
 import scipy.linalg as sla
-from numba import njit
 
 from ..linalg.threads import dense_kernel
+from ._kernels import _ac_kernel  # compiled: the per-contact rest of F and its blocks (_kernels.pyx)
 
 
 def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
@@ -44,71 +44,8 @@ def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
     u = (d * (W @ (d * s.ravel()))).reshape(n, 3) + qs
     size = n if jacobian else 0
     P, Q = np.zeros((size, 3, 3)), np.zeros((size, 3, 3))
-    F = _ac_kernel(np.ascontiguousarray(s), u, mu, rho, fixed, P, Q)
+    F = _ac_kernel(np.ascontiguousarray(s), u, mu, rho, np.asarray(fixed, dtype=bool).view(np.uint8), P, Q)
     return (F, P, Q) if jacobian else F
-
-
-@njit(cache=True)
-def _ac_kernel(s, u, mu, rho, fixed, P, Q):
-    """``F`` of :func:`alart_curnier` for displacements ``u``, and its
-    Jacobian blocks into ``P``, ``Q`` (zeroed, shape (n, 3, 3)) unless they
-    have no rows.
-
-    Per contact, with ``p = s_n - rho_n u_n``, ``R = mu max(p, 0)``, ``z = s_t -
-    rho_t u_t``; the Jacobian is ``blockdiag(P) + Q W_s``:
-
-    * normal row, active (p > 0): ``rho_n W_n`` (P = 0, Q = rho_n e_n);
-      inactive: ``e_n`` (P = e_n, Q = 0);
-    * tangent rows, stick (|z| <= R, R > 0): ``rho_t W_t`` (P = 0, Q = rho_t [0 I]);
-      slide: ``E_t - zhat dR^T - R/|z| (I - zhat zhat^T)(E_t - rho_t W_t)`` with
-      ``dR = mu (e_n - rho_n W_n)`` when active, else 0;
-    * components pinned to zero: ``F = s``, row ``e_i``.
-    """
-    n = s.shape[0]
-    F = np.empty((n, 3))
-    jac = P.shape[0] > 0
-    for c in range(n):
-        rn, r = rho[c, 0], rho[c, 1]
-        p = s[c, 0] - rn * u[c, 0]
-        active = p > 0.0
-        R = mu[c] * p if active else 0.0
-        z1 = s[c, 1] - r * u[c, 1]
-        z2 = s[c, 2] - r * u[c, 2]
-        zn = math.sqrt(z1 * z1 + z2 * z2)
-        stick = zn <= R and R > 0.0
-        h1, h2 = (z1 / zn, z2 / zn) if zn > 0.0 else (0.0, 0.0)
-        F[c, 0] = rn * u[c, 0] if active else s[c, 0]
-        if stick:
-            F[c, 1], F[c, 2] = r * u[c, 1], r * u[c, 2]
-        else:
-            F[c, 1], F[c, 2] = s[c, 1] - R * h1, s[c, 2] - R * h2
-        if jac:
-            if active:
-                Q[c, 0, 0] = rn
-            else:
-                P[c, 0, 0] = 1.0
-            if stick:
-                Q[c, 1, 1] = r
-                Q[c, 2, 2] = r
-            else:
-                coef = R / zn if zn > 0.0 else 0.0
-                m_act = mu[c] if active else 0.0
-                h = (h1, h2)
-                for i in range(2):
-                    P[c, 1 + i, 0] = -m_act * h[i]
-                    Q[c, 1 + i, 0] = m_act * rn * h[i]
-                    for j in range(2):
-                        proj = (1.0 if i == j else 0.0) - h[i] * h[j]
-                        P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
-                        Q[c, 1 + i, 1 + j] = coef * r * proj
-        for i in range(3):
-            if fixed[c, i]:
-                F[c, i] = s[c, i]
-                if jac:
-                    for j in range(3):
-                        P[c, i, j] = 1.0 if i == j else 0.0
-                        Q[c, i, j] = 0.0
-    return F
 
 
 def newton_matrix(P, Q, W, d) -> np.ndarray:

@@ -26,12 +26,10 @@ non-convergence, never as an overflow.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit
 
-from .friction import _modified, _project, _project_kernel
+from ._kernels import _gauss_seidel_sweeps  # compiled: eq. 44 contact by contact (_kernels.pyx)
+from .friction import _modified, _project
 
 _GROWTH = 2.0  # residual growth that halves the Jacobi step ...
 _GROWTH_GS = 100.0  # ... and the Gauss-Seidel one, whose residual is not monotone in its first sweeps
@@ -47,53 +45,6 @@ def paper_rho(W) -> np.ndarray:
     diag = np.diag(W).reshape(n, 3)
     wmin = np.where(diag > 0, diag, np.inf).min(axis=1)
     return np.where(np.isfinite(wmin), 1.0 / np.where(np.isfinite(wmin), wmin, 1.0), 1.0)
-
-
-@njit(cache=True)
-def _gauss_seidel_sweeps(W, q, mx, my, rho, r, sweeps, stick_inverse):
-    """``sweeps`` Gauss-Seidel sweeps of eq. 44 over the contacts, in place on ``r`` (n, 3).
-
-    With ``stick_inverse`` (the inverses of the contacts' 3x3 diagonal blocks of
-    ``W``, shape (n, 3, 3); no rows: not used) a contact first tries sticking:
-    ``r_c = -W_cc^-1 (u_c - W_cc r_c)``, the reaction that cancels its own
-    displacement, is its exact local solution whenever it lies in ``K_mu``;
-    otherwise it takes the step of eq. 44.
-    """
-    n = q.shape[0]
-    rf = r.reshape(3 * n)
-    one = np.empty((1, 3))
-    stick = stick_inverse.shape[0] > 0
-    for _ in range(sweeps):
-        for c in range(n):
-            u0, u1, u2 = q[c, 0], q[c, 1], q[c, 2]
-            for j in range(3 * n):
-                rj = rf[j]
-                u0 += W[3 * c, j] * rj
-                u1 += W[3 * c + 1, j] * rj
-                u2 += W[3 * c + 2, j] * rj
-            if stick:
-                # displacement with this contact's own reaction taken out
-                f0, f1, f2 = u0, u1, u2
-                for i in range(3):
-                    ri = r[c, i]
-                    f0 -= W[3 * c, 3 * c + i] * ri
-                    f1 -= W[3 * c + 1, 3 * c + i] * ri
-                    f2 -= W[3 * c + 2, 3 * c + i] * ri
-                A = stick_inverse[c]
-                s0 = -(A[0, 0] * f0 + A[0, 1] * f1 + A[0, 2] * f2)
-                s1 = -(A[1, 0] * f0 + A[1, 1] * f1 + A[1, 2] * f2)
-                s2 = -(A[2, 0] * f0 + A[2, 1] * f1 + A[2, 2] * f2)
-                c1 = 0.0 if s1 == 0.0 else s1 / mx[c]
-                c2 = 0.0 if s2 == 0.0 else s2 / my[c]
-                if s0 >= 0.0 and math.hypot(c1, c2) <= s0:
-                    r[c, 0], r[c, 1], r[c, 2] = s0, s1, s2
-                    continue
-            rc = rho[c]
-            one[0, 0] = r[c, 0] - rc * (u0 + math.hypot(mx[c] * u1, my[c] * u2))
-            one[0, 1] = r[c, 1] - rc * u1
-            one[0, 2] = r[c, 2] - rc * u2
-            p = _project_kernel(one, mx[c:c + 1], my[c:c + 1])
-            r[c, 0], r[c, 1], r[c, 2] = p[0, 0], p[0, 1], p[0, 2]
 
 
 def _stick_inverses(W, n) -> np.ndarray:

@@ -30,8 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from scipy.linalg import blas, lapack
+
+from ._kernels import _extend_add  # compiled: one pass over a child's update (_kernels.pyx)
 
 __all__ = ["SupernodalStructure", "SupernodalFactor", "NotPositiveDefinite", "supernodal_structure", "factorise"]
 
@@ -268,30 +269,6 @@ class SupernodalFactor:
         # contact blocks, (n, 3, n_root); on the Fortran layout those blocks are
         # strided by n_root and batched products over them run 6x slower.
         return G.T
-
-
-@njit(cache=True)
-def _extend_add(panel, corner, U, rel):
-    """Add a child's update ``U`` (its lower triangle; the upper one is not
-    computed) into its parent's front: entry ``(i, j)``, ``i >= j``, goes to
-    front position ``(rel[i], rel[j])``, which is in the parent's ``panel``
-    (its pivot columns, ``(p + q, p)``) if ``rel[j] < p``, else in its
-    ``corner`` (the boundary block, ``(q, q)``).  All three Fortran-ordered.
-
-    One pass over the update, a column at a time.  The numpy equivalent, a
-    gather-add-scatter per run of consecutive positions, took a third of the
-    factorisation at 2.3e5 dofs (21.7 of 68 s).
-    """
-    p = panel.shape[1]
-    m = rel.size
-    for j in range(m):
-        col = rel[j]
-        if col < p:
-            for i in range(j, m):
-                panel[rel[i], col] += U[i, j]
-        else:
-            for i in range(j, m):  # rel is increasing: rel[i] >= col >= p
-                corner[rel[i] - p, col - p] += U[i, j]
 
 
 def factorise(structure: SupernodalStructure, data: np.ndarray) -> SupernodalFactor:

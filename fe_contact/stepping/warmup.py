@@ -1,11 +1,14 @@
 """Loading the compiled kernels before a timed loop.
 
 The per-contact kernels (cone projection, Alart-Curnier, the paper's Gauss-Seidel
-Uzawa sweep) and the multifrontal extend-add are numba functions cached on disk; the
-first call in a process loads them (LLVM start-up, 0.3-1.3 s on the 2-core machine,
-more when it is busy). A program with a rate to keep (a control loop, a
-co-simulation) calls :func:`warm_up` once at start-up so that its first period does
-not pay for it. The results of later steps are the same with or without it.
+Uzawa sweep) and the multifrontal extend-add are compiled ahead of time (Cython, built
+at install: ``fe_contact/*/_kernels.pyx``), so a first call compiles and loads nothing;
+until 2026-11-25 they were numba functions whose first call in a process cost 0.1-1.4 s.
+What a first step still pays once is small (the first calls into numpy and LAPACK:
+``warm_up`` takes 0.015 s against 0.011 s for a second call, measured on the 2-core
+machine). A program with a rate to keep (a control loop, a co-simulation) may call
+:func:`warm_up` once at start-up so that its first period does not pay for it. The
+results of later steps are the same with or without it.
 """
 
 from __future__ import annotations
