@@ -4,24 +4,25 @@ tree before, in one run (issue 32 item 3):
 - ``pushplan simulate scenarios/paper_case3.toml --no-recording --out DIR`` (target
   <= 1.2 s wall);
 - ``pushplan plan scenarios/plan_steel_case3.toml --out DIR`` (target <= 1.0 s wall);
-- and the floors under them, each a process: the interpreter with numpy and
-  scipy.linalg imported; with numba too; ``import fe_contact``; the same and one
-  cached numba kernel loaded (numba's typing context, which every FE run pays);
-  ``import rerun``.
+- and the floors under them, each a process, on every tree: the interpreter with numpy
+  and scipy.linalg imported; ``import fe_contact``; the same and the first compiled
+  kernel called (the cone projection: before issue 32 item 3 a cached numba kernel,
+  whose load, numba's typing context, every FE run paid); ``import rerun``.
 
 Each command is a process started as the installed ``pushplan`` script starts it
-(``from pushplan.cli import main``), from the tree's root, the thread variables the
+(``from pushplan.cli import main``), from the tree's root with the tree's own
+``.venv/bin/python`` (this tree's where a tree has none), the thread variables the
 Makefile sets removed; the trees alternate run by run.  This tree runs also through its
 installed ``.venv/bin/pushplan``.  Wall time (``perf_counter`` around the process) and
 CPU time (user + system of the process and its children, ``RUSAGE_CHILDREN``); medians of
 ``--repeat`` runs; the load average before and after.  Writes
 ``benchmarks/results/startup.json``.
 
-    git worktree add ../speed-base 0d2932b && ln -s "$PWD/.venv" ../speed-base/.venv
-    .venv/bin/python benchmarks/startup.py --base ../speed-base [--repeat 5]
+    git worktree add ../aot-base d7aea18 && ln -s /path/to/a/venv/with/numba ../aot-base/.venv
+    .venv/bin/python benchmarks/startup.py --base ../aot-base [--repeat 5]
 
-``--base``: a checkout of the tree to compare with (its code is imported from its root,
-so this tree's ``.venv`` serves both, as above).
+``--base``: a checkout of the tree to compare with (its code is imported from its root;
+a tree from before the compiled kernels, d7aea18 and older, needs a venv with numba).
 """
 
 from __future__ import annotations
@@ -41,13 +42,12 @@ from _common import write_results
 ROOT = Path(__file__).resolve().parents[1]
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS")
 SCRIPT = "import sys\nfrom pushplan.cli import main\nsys.argv[0] = 'pushplan'\nsys.exit(main())\n"
-NUMBA_KERNEL = ("import numpy as np\nimport fe_contact\nfrom fe_contact.contact.friction import _project\n"
+FIRST_KERNEL = ("import numpy as np\nimport fe_contact\nfrom fe_contact.contact.friction import _project\n"
                 "_project(np.ones((1, 3)), np.ones(1), np.ones(1))\n")
 FLOORS = {
     "python_numpy_scipy_linalg": ["-c", "import numpy, scipy.linalg"],
-    "plus_numba": ["-c", "import numpy, scipy.linalg, numba"],
     "import_fe_contact": ["-c", "import fe_contact"],
-    "fe_contact_first_kernel": ["-c", NUMBA_KERNEL],
+    "fe_contact_first_kernel": ["-c", FIRST_KERNEL],
     "import_rerun": ["-c", "import rerun, rerun.blueprint"],
 }
 
@@ -73,21 +73,29 @@ def commands(out: Path) -> dict:
     }
 
 
+def python_of(root: Path) -> str:
+    """The tree's own interpreter, or this tree's."""
+    own = root / ".venv" / "bin" / "python"
+    return str(own if own.exists() else ROOT / ".venv" / "bin" / "python")
+
+
 def measure(trees: dict[str, Path], repeat: int, tmp: Path) -> dict:
-    python = str(ROOT / ".venv" / "bin" / "python")
     installed = str(ROOT / ".venv" / "bin" / "pushplan")
-    for root in trees.values():  # numba's on-disk cache of each tree filled, not timed
-        subprocess.run([python, "-c", "import fe_contact; fe_contact.warm_up()"], cwd=root, env=user_env(), check=True)
+    for root in trees.values():  # a numba tree's on-disk cache filled, and the files read once, not timed
+        subprocess.run([python_of(root), "-c", "import fe_contact; fe_contact.warm_up()"], cwd=root, env=user_env(),
+                       check=True)
     runs: dict = {}
     for _ in range(repeat):
         for name in ("simulate", "plan"):
             for label, root in trees.items():
                 argv = commands(tmp / label)[name]
-                runs.setdefault(name, {}).setdefault(label, []).append(timed([python, "-c", SCRIPT, *argv], root))
+                runs.setdefault(name, {}).setdefault(label, []).append(
+                    timed([python_of(root), "-c", SCRIPT, *argv], root))
             argv = commands(tmp / "installed")[name]
             runs[name].setdefault("this_installed", []).append(timed([installed, *argv], ROOT))
         for name, argv in FLOORS.items():
-            runs.setdefault(name, {}).setdefault("this", []).append(timed([python, *argv], ROOT))
+            for label, root in trees.items():
+                runs.setdefault(name, {}).setdefault(label, []).append(timed([python_of(root), *argv], root))
     return runs
 
 
