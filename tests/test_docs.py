@@ -152,7 +152,7 @@ def test_relative_links_resolve(page):
     assert not missing, f"{_rel(page)}: links to missing files {missing}"
 
 
-NAMED_FILE = re.compile(r"`(?P<path>(?:fe_contact|pushplan|benchmarks|tests|scenarios)/[\w/.-]+\.(?:py|toml|xml|json))")
+NAMED_FILE = re.compile(r"`(?P<path>(?:fe_contact|pushplan|benchmarks|tests|scenarios)/[\w/.-]+\.(?:pyx|py|toml|xml|json))")
 
 
 @pytest.mark.parametrize("page", PAGES, ids=_rel)
