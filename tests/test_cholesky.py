@@ -107,3 +107,30 @@ def test_a_mesh_off_the_grid_steps_on_superlu_like_the_grid():
     (_, a), (_, b) = (step(m, initial_state(m), Command(dz=-1e-4)) for m in (grid, moved))
     assert a.converged and b.converged
     np.testing.assert_allclose(b.reaction_world, a.reaction_world, rtol=0, atol=1e-4 * np.abs(a.reaction_world).max())
+
+
+def test_extend_add_scatters_the_lower_triangle_and_refuses_positions_outside_the_front():
+    """The compiled extend-add (``fe_contact/linalg/_kernels.pyx``) against a dense
+    scatter written here: entry ``(i, j)``, ``i >= j``, of the update goes to front
+    position ``(rel[i], rel[j])``, in the panel (p pivot columns) or the corner; its
+    bounds checks are off, so positions that do not increase strictly within the front
+    are refused with a ValueError instead of writing outside it."""
+    from fe_contact.linalg.cholesky import _extend_add
+
+    rng = np.random.default_rng(3)
+    p, q, m = 5, 7, 8
+    rel = np.sort(rng.choice(p + q, m, replace=False)).astype(np.int64)
+    U = np.asfortranarray(rng.standard_normal((m, m)))
+    front = rng.standard_normal((p + q, p + q))
+    panel, corner = np.asfortranarray(front[:, :p]), np.asfortranarray(front[p:, p:])
+    _extend_add(panel, corner, U, rel)
+    expected = front.copy()
+    i, j = np.tril_indices(m)
+    np.add.at(expected, (rel[i], rel[j]), U[i, j])
+    np.testing.assert_array_equal(panel, expected[:, :p])
+    np.testing.assert_array_equal(corner, expected[p:, p:])
+    for bad in (rel[::-1].copy(), np.r_[rel[:-1], p + q].astype(np.int64), np.r_[-1, rel[1:]].astype(np.int64)):
+        with pytest.raises(ValueError, match="rel must increase"):
+            _extend_add(panel, corner, U, bad)
+    with pytest.raises(ValueError, match="do not fit"):
+        _extend_add(panel, corner, U[:m - 1, :m - 1], rel)

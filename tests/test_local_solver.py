@@ -461,3 +461,33 @@ def test_gmres_gives_up_on_a_product_that_is_not_finite():
     assert gmres(lambda v: v, b, lambda v: v * np.inf, 1e-2, 20) is None
     x = gmres(lambda v: 2.0 * v, b, lambda v: v, 1e-12, 20)
     np.testing.assert_allclose(x, 0.5 * b, rtol=1e-12)
+
+
+def test_gauss_seidel_sweep_with_a_frictionless_axis_and_its_shape_checks():
+    """The compiled sweep (``fe_contact/contact/_kernels.pyx``) divides by the friction
+    coefficients in its stick test: with ``mu_x = 0`` the division gives ``inf`` (no
+    exception) and the stick reaction, which has a tangential x component, is rejected, so
+    the reactions carry no force along x (``r_tx = 0``, the cone of a zero coefficient)
+    and stay in the cone; one contact's sweep equals eq. 44 computed here. Its bounds
+    checks are off, so shapes that do not fit are refused with a ValueError."""
+    from fe_contact.contact.friction import in_cone, modified_velocity
+    from fe_contact.contact.uzawa import _gauss_seidel_sweeps, _stick_inverses
+
+    rng = np.random.default_rng(5)
+    n = 6
+    A = rng.standard_normal((3 * n, 3 * n))
+    W = np.ascontiguousarray(A @ A.T / (3 * n) + np.eye(3 * n))
+    q = rng.standard_normal((n, 3)) - [2.0, 0.0, 0.0]  # pressed: every contact closes
+    mx, my, rho = np.zeros(n), np.full(n, 0.4), np.full(n, 0.5)
+    r = np.zeros((n, 3))
+    _gauss_seidel_sweeps(W, q, mx, my, rho, r, 20, _stick_inverses(W, n))
+    assert np.all(r[:, 1] == 0.0) and np.all(r[:, 0] > 0.0) and np.any(r[:, 2] != 0.0)
+    assert np.all(in_cone(r, mx, my, tol=1e-12))
+    one = np.zeros((1, 3))
+    _gauss_seidel_sweeps(W[:3, :3].copy(), q[:1], my[:1], my[:1], rho[:1], one, 1, np.zeros((0, 3, 3)))
+    np.testing.assert_allclose(one, project_elliptic_cone(-rho[0] * modified_velocity(q[:1], my[0], my[0]),
+                                                          my[0], my[0]), rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="must be"):
+        _gauss_seidel_sweeps(W, q, mx, my, rho, np.zeros((n - 1, 3)), 1, np.zeros((0, 3, 3)))
+    with pytest.raises(ValueError, match="must be"):
+        _gauss_seidel_sweeps(W[:-3, :-3].copy(), q, mx, my, rho, r, 1, np.zeros((0, 3, 3)))
