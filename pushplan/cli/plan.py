@@ -115,7 +115,7 @@ def cmd_plan(args) -> int:
         atomic_write_json(tx.path / "plan.json", doc)
         wrote = [tx.out / "plan.json"]
         if not args.no_recording:
-            fn, job = recording_job(result, tx.path / "recording.rrd", scenario.model())
+            fn, job = recording_job(result, tx.path / "recording.rrd", scenario.mesh())
             writer.run(fn, *job)
             wrote.append(tx.out / "recording.rrd")
     print(f"{scenario.name}: {result.status} ({result.message})")

@@ -57,7 +57,7 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fe_contact import Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
+from fe_contact import BlockMesh, Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
 from fe_contact.fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
 from fe_contact.fem.material import LAWS
 from fe_contact.stepping.model import LOCAL_METHODS
@@ -130,7 +130,7 @@ class Scenario:
         check_memory(elements or self.elements, quadrature or self.quadrature,
                      what=what or ("block.elements" if elements is None else "the mesh"))
         return Model(
-            mesh=block_mesh(self.size, elements or self.elements),
+            mesh=self.mesh(elements),
             material=Material(self.young, self.poisson, self.density, self.material_model),
             friction=Friction(self.mu_x, self.mu_y, math.radians(self.angle_deg)),
             quadrature=quadrature or self.quadrature,
@@ -139,6 +139,12 @@ class Scenario:
             pad=self.pad,
             element=self.element,
         )
+
+    def mesh(self, elements=None) -> BlockMesh:
+        """The block's mesh (of :meth:`model`; ``elements`` overrides the divisions), without
+        the model's element geometry, sparsity and factorisation structure (a recording
+        needs only the mesh)."""
+        return block_mesh(self.size, elements or self.elements)
 
     def to_dict(self) -> dict:
         """The scenario as TOML-/JSON-ready tables (SI units): what

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from fe_contact import Model
+from fe_contact import BlockMesh, Model
 
 from ..config.commands import commands_to_list, planar_commands
 from ..config.fingerprint import scenario_fingerprint
@@ -119,14 +119,15 @@ def _release_json(result: PlanResult) -> dict:
 
 def write_recording(result: PlanResult, path, verification_model: Model) -> None:
     """``recording.rrd``: the verified FE rollout (press and plan) and the plan overlays."""
-    fn, args = recording_job(result, path, verification_model)
+    fn, args = recording_job(result, path, verification_model.mesh)
     fn(*args)
 
 
-def recording_job(result: PlanResult, path, verification_model: Model) -> tuple:
+def recording_job(result: PlanResult, path, mesh: BlockMesh) -> tuple:
     """:func:`write_recording` as ``(function, arguments)``, the arguments plain picklable
     data (reports, summaries, arrays): what :class:`~pushplan.outputs.recording_process.
-    RecordingProcess` runs in its child."""
+    RecordingProcess` runs in its child.  ``mesh``: the verification mesh
+    (:meth:`~pushplan.config.scenario.Scenario.mesh`, no model needed)."""
     spec = result.spec
     resolved = {**result.scenario.to_dict(), "load": plan_commands_json(result)}
     reports = (*result.press_reports, *result.verified.reports)
@@ -136,7 +137,7 @@ def recording_job(result: PlanResult, path, verification_model: Model) -> tuple:
                    verified=result.verified.lower[:, :dims],
                    naive=None if result.naive is None else result.naive.lower[:, :dims],
                    cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))
-    return _write_plan_recording, (path, f"plan_{result.scenario.name}", verification_model.mesh, resolved,
+    return _write_plan_recording, (path, f"plan_{result.scenario.name}", mesh, resolved,
                                    reports, steps, overlay)
 
 
