@@ -268,11 +268,12 @@ def second_piola_kirchhoff(E, material: Material) -> np.ndarray:
     return material.lame_lambda * trace[..., None, None] * _I3 + 2.0 * material.lame_mu * E
 
 
-def _stress_state(geometry, elements, U, material):
-    """``H = F - I`` and ``S`` at every Gauss point, component-major: shape
-    ``(3, 3, n_elems * n_qp)``.  The hot path of every Newton iteration: each
-    tensor component is one long vector, so the algebra is a few dozen
-    vectorised operations instead of batched 3x3 products."""
+def _strain_state(geometry, elements, U):
+    """``H = F - I`` and the Green-Lagrange ``E`` at every Gauss point,
+    component-major: shape ``(3, 3, n_elems * n_qp)``, points in ``(e, q)`` order.
+    The hot path of every Newton iteration: each tensor component is one long
+    vector, so the algebra is a few dozen vectorised operations instead of
+    batched 3x3 products."""
     n_elems, n_qp = geometry.dvol.shape
     Hq = _displacement_gradient(geometry, elements, U)  # (e, q, i, J) view
     H = np.ascontiguousarray(Hq.transpose(2, 3, 0, 1)).reshape(3, 3, n_elems * n_qp)
@@ -284,8 +285,16 @@ def _stress_state(geometry, elements, U, material):
             e_ij *= 0.5
             E[i, j] = e_ij
             E[j, i] = e_ij
+    return H, E
+
+
+def _stress_state(geometry, elements, U, material):
+    """``H = F - I`` and St Venant-Kirchhoff's ``S = lambda tr(E) I + 2 mu E`` at
+    every Gauss point, component-major (:func:`_strain_state`)."""
+    H, E = _strain_state(geometry, elements, U)
     trace = E[0, 0] + E[1, 1] + E[2, 2]
-    S = (2.0 * material.lame_mu) * E
+    S = E
+    S *= 2.0 * material.lame_mu  # E is not needed after: S takes its buffer
     for k in range(3):
         S[k, k] += material.lame_lambda * trace
     return H, S
@@ -323,12 +332,11 @@ def stored_energy(geometry: ElementGeometry, elements, U, material: Material) ->
     if not _plain_stvk(geometry, material):
         return float(element_energy(geometry.grad, geometry.dvol, U[elements], material.model,
                                     material.lame_lambda, material.lame_mu, geometry.element == "fbar").sum())
-    E = green_lagrange(deformation_gradient(geometry, elements, U))
-    trace = np.trace(E, axis1=-2, axis2=-1)
-    density = 0.5 * material.lame_lambda * trace**2 + material.lame_mu * np.einsum(
-        "eqIJ,eqIJ->eq", E, E
-    )
-    return float(np.sum(density * geometry.dvol))
+    _, E = _strain_state(geometry, elements, U)  # component-major, points in (e, q) order
+    E = E.reshape(9, -1)
+    trace = E[0] + E[4] + E[8]
+    density = 0.5 * material.lame_lambda * trace**2 + material.lame_mu * np.einsum("cn,cn->n", E, E)
+    return float(np.sum(density * geometry.dvol.ravel()))
 
 
 def internal_force(
