@@ -78,7 +78,32 @@ def test_unset_dense_threads_are_the_cpus_other_work_leaves_idle(monkeypatch, lo
     monkeypatch.delenv(_threads.ENV, raising=False)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    monkeypatch.setattr(_threads, "running_elsewhere", lambda: 0)
     assert _threads.dense_threads() == expected
+
+
+@pytest.mark.parametrize("others, expected", [(None, 2), (0, 2), (1, 1), (5, 1)])
+def test_work_started_since_the_load_average_leaves_one_thread(monkeypatch, others, expected):
+    """On 2 usable CPUs at load average 0 (it lags by a minute): another process's thread
+    running now takes a CPU; None (no /proc) leaves the load average alone to decide."""
+    monkeypatch.delenv(_threads.ENV, raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(_threads, "running_elsewhere", lambda: others)
+    assert _threads.dense_threads() == expected
+
+
+def test_own_running_threads_are_not_other_work(monkeypatch):
+    """The caller's own thread is running when it asks (so is a BLAS worker still
+    spinning after a kernel): ``running_elsewhere`` subtracts this process's running
+    threads from the machine's, never below 0."""
+    own = _threads._own_running_threads()
+    assert own >= 1
+    monkeypatch.setattr(_threads, "_running_threads", lambda: 7)
+    monkeypatch.setattr(_threads, "_own_running_threads", lambda: 3)
+    assert _threads.running_elsewhere() == 4
+    monkeypatch.setattr(_threads, "_running_threads", lambda: 2)
+    assert _threads.running_elsewhere() == 0
 
 
 def test_compiled_kernels_are_built_ahead_of_time():

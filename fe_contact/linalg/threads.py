@@ -61,20 +61,61 @@ def limit_blas_threads() -> bool:
 
 
 def idle_cpus() -> int:
-    """The CPUs this process may use less the 1-minute load average beyond this
-    process's own 1 (rounded), at least 1; all of them where the load average
-    is not available.
+    """The CPUs this process may use less the other work, at least 1: less the
+    1-minute load average beyond this process's own 1 (rounded), and less the
+    threads of other processes running now (:func:`running_elsewhere`); all of
+    them where neither is available.
 
-    The load average lags by about a minute and counts this process's own
-    threads, so a long stretch of two-threaded kernels can lower it to one
-    thread: at most the 1.8x of the kernels, where a busy machine costs 4x.
+    The load average lags by about a minute: work that started since (a test
+    suite, another run) is seen only by the count of running threads, and with
+    it the second thread of a kernel waits for a core (paper case 3 with one
+    other CPU-bound process on 2 cores and a load average of 1.1-1.6 that still
+    said "2 idle": 1.9-4.7 s wall, 1.7-2.0 s with one thread, alternating runs).
+    The load average counts this process's own threads, so a long stretch of
+    two-threaded kernels can lower it to one thread: at most the 1.8x of the
+    kernels, where a busy machine costs 4x.
     """
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    idle = cpus
     try:
-        load = os.getloadavg()[0]
+        idle = min(idle, int(cpus - max(os.getloadavg()[0] - 1.0, 0.0) + 0.5))
     except (AttributeError, OSError):
-        return cpus
-    return max(1, min(cpus, int(cpus - max(load - 1.0, 0.0) + 0.5)))
+        pass
+    others = running_elsewhere()
+    if others is not None:
+        idle = min(idle, cpus - others)
+    return max(1, idle)
+
+
+def running_elsewhere() -> int | None:
+    """Threads of other processes running or runnable now: the running count of
+    ``/proc/loadavg`` less this process's own running threads (its BLAS workers
+    spin for a while after a threaded kernel; they are not other work); None
+    without ``/proc`` (not Linux).  About 50 us."""
+    try:
+        return max(_running_threads() - _own_running_threads(), 0)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _running_threads() -> int:
+    """Threads running or runnable on the machine now (``/proc/loadavg``, field 4)."""
+    with open("/proc/loadavg", "rb") as f:
+        return int(f.read().split()[3].split(b"/")[0])
+
+
+def _own_running_threads() -> int:
+    """This process's threads in state R (``/proc/self/task/*/stat``): at least the caller."""
+    own = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat", "rb") as f:
+                stat = f.read()
+        except OSError:  # the thread ended meanwhile
+            continue
+        state = stat.rindex(b")") + 2  # the state follows the command name, which may hold spaces
+        own += stat[state:state + 1] == b"R"
+    return own
 
 
 def dense_threads() -> int:
@@ -93,8 +134,11 @@ def dense_threads() -> int:
 
 def dense_kernel(size: int):
     """Context in which BLAS runs on :func:`dense_threads` threads, for a dense
-    kernel of order ``size``; below :data:`MIN_SIZE` it changes nothing."""
+    kernel of order ``size``; below :data:`MIN_SIZE` it changes nothing (and does
+    not look at the machine's load: a plan's small local problems ask 60 times)."""
+    if size < MIN_SIZE:
+        return nullcontext()
     n = dense_threads()
-    if size < MIN_SIZE or n <= 1:
+    if n <= 1:
         return nullcontext()
     return _blas_controller().limit(limits=n, user_api="blas")
