@@ -72,3 +72,27 @@ def test_a_job_that_does_not_pickle_is_refused_in_the_caller():
         with pytest.raises(AttributeError):  # a local function pickles by name: not found
             writer.run(lambda: None)
     assert child not in children()
+
+
+def test_the_childs_warm_up_writes_a_recording_and_leaves_nothing(tmp_path, monkeypatch):
+    """The warm-up the child runs before its job (its errors are swallowed there, so it is
+    checked here): a real recording, written and removed with its temporary folder."""
+    import tempfile
+
+    from pushplan.outputs import recording_process
+
+    written = []
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    from pushplan.outputs import recording
+
+    close = recording.Recorder.close
+
+    def spy(self):
+        path = close(self)
+        written.append(path.stat().st_size)
+        return path
+
+    monkeypatch.setattr(recording.Recorder, "close", spy)
+    recording_process._warm_up()
+    assert len(written) == 1 and written[0] > 1000
+    assert list(tmp_path.iterdir()) == []
