@@ -295,8 +295,9 @@ def refreshed_tangent(model: Model, state: State, handed_K: list, it: int, timin
             tangent = Tangent(model, K)
     except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
         return None, False, f"tangent stiffness singular at Newton iteration {it}: {exc}"
-    if not _flexible(tangent):
-        tangent, at_start = _supported_tangent(model, state, loading, timings), True
+    if _flexible(tangent):
+        return tangent, at_start, ""
+    tangent, at_start = _supported_tangent(model, state, loading, timings), True
     w_diag = np.diag(tangent.W_scaled)
     if not _flexible(tangent):
         # a flexibility matrix must be positive definite; rounding has won
