@@ -8,6 +8,9 @@ process times: ``benchmarks/startup.py``):
 - ``stored_energy``: the strain energy every step's report holds, 20x20x5, median of 20;
 - ``recording_mesh``: what ``pushplan plan`` builds for its recording, 12x12x4: a second
   ``Model`` before, the mesh alone now;
+- ``solve_phase_paper_case``: the "solve" phase (``StepReport.timings``) of the paper case's five
+  steps with single right-hand sides through ``dtrsv`` against ``dtrsm`` (both in this tree's
+  process, whole runs alternating: one change measured alone);
 - ``recording_wait``: how long ``pushplan plan scenarios/plan_steel_case3.toml`` waits
   at its end for the recording process (the job's time in a child that imported rerun
   while the parent planned; warmed up now), in-process ``main``, median of ``--repeat``;
@@ -64,6 +67,26 @@ U = 1e-5 * np.random.default_rng(0).standard_normal((model.mesh.n_nodes, 3))
 out["stored_energy_s"] = median(lambda: stored_energy(model.geometry, model.mesh.elements, U, model.material), 20)
 steel = load_scenario("scenarios/plan_steel_case3.toml")
 out["recording_mesh_s"] = median(steel.mesh if hasattr(steel, "mesh") else steel.model, 5)
+
+import fe_contact.linalg.cholesky as ch
+if hasattr(ch, "_triangular_solve"):  # this tree: its solves against dtrsm's, whole runs alternating
+    from scipy.linalg import blas
+    from fe_contact import initial_state, step
+    trsv = ch._triangular_solve
+    def trsm(L, b, transposed=False):
+        return blas.dtrsm(1.0, L, b, lower=1, trans_a=int(transposed))
+    phases = {"dtrsv": [], "dtrsm": []}
+    for r in range(4):
+        for name in (("dtrsv", "dtrsm") if r % 2 == 0 else ("dtrsm", "dtrsv")):
+            ch._triangular_solve = trsv if name == "dtrsv" else trsm
+            state, total = initial_state(model), 0.0
+            for c in paper.commands:
+                state, rep = step(model, state, c, consume=True)
+                total += rep.timings["solve"]
+            phases[name].append(total)
+    ch._triangular_solve = trsv
+    out["solve_phase_dtrsv_s"] = float(np.median(phases["dtrsv"]))
+    out["solve_phase_dtrsm_s"] = float(np.median(phases["dtrsm"]))
 
 import pushplan.outputs.recording_process as rp
 waits = []
@@ -130,6 +153,12 @@ def main(argv=None) -> None:
     for key in ("model_build_first_s", "model_build_s", "stored_energy_s", "recording_mesh_s", "recording_wait_s"):
         this, base = measured["this"][key], measured["base"][key]
         rows[key] = {"this": this, "base": base, "saved_s": base - this, "ratio_this_over_base": this / base}
+    this = measured["this"]
+    if "solve_phase_dtrsv_s" in this:  # one change, A/B in this tree's process
+        rows["solve_phase_paper_case_s"] = {
+            "this": this["solve_phase_dtrsv_s"], "base": this["solve_phase_dtrsm_s"],
+            "saved_s": this["solve_phase_dtrsm_s"] - this["solve_phase_dtrsv_s"],
+            "ratio_this_over_base": this["solve_phase_dtrsv_s"] / this["solve_phase_dtrsm_s"]}
     rows["simulate_busy_wall_s"] = {**{k: v["median_s"] for k, v in busy.items()},
                                     "ratio_this_over_base": busy["this"]["median_s"] / busy["base"]["median_s"]}
     result = {"started": started, "load_average_before": load_before, "load_average_after": os.getloadavg(),
