@@ -12,6 +12,8 @@ and shows its traceback (exit 1).
 from __future__ import annotations
 
 import argparse
+import atexit
+import gc
 import importlib
 import os
 import sys
@@ -73,12 +75,26 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
+def _leave_objects_to_the_os() -> None:
+    """At interpreter exit (an ``atexit`` handler, so after the command and before the
+    interpreter's finalisation): freeze the objects alive then out of the garbage
+    collector (``gc.freeze``), so the shutdown's full collection does not traverse every
+    one of them (numpy, scipy, numba, the model): 0.23-0.43 s after a ``simulate`` of the
+    paper case, 0.05-0.07 s with it (loaded 2-core machine).  Objects are still released
+    by reference counting and the interpreter still flushes the standard streams; only
+    garbage in reference cycles is left to the OS, as the process ends.  In a process that
+    goes on after ``main`` (tests) it runs once, at that process's exit."""
+    gc.freeze()
+
+
 def main(argv=None) -> int:
     """Run a command; warnings raised on the way are shown after it, except before a
     clean one-line outcome (exit 2, 3, 1 for a full disk, 130), which they would bury.
 
     The held-back warnings are shown after ``catch_warnings`` has been left: shown
     inside it, each would be recorded again and the loop over them would never end."""
+    atexit.unregister(_leave_objects_to_the_os)  # registered once however often main runs
+    atexit.register(_leave_objects_to_the_os)
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a usage error (one line, exit 2)
