@@ -14,6 +14,9 @@ process times: ``benchmarks/startup.py``):
 - ``recording_wait``: how long ``pushplan plan scenarios/plan_steel_case3.toml`` waits
   at its end for the recording process (the job's time in a child that imported rerun
   while the parent planned; warmed up now), in-process ``main``, median of ``--repeat``;
+- ``exit_after_simulate``: from the end of ``main`` (a paper-case simulate) to the end of
+  its process: the interpreter's shutdown, whose full garbage collection the CLI now skips
+  (``gc.freeze`` at exit), median of ``--repeat``;
 - ``simulate_busy``: process wall time of ``pushplan simulate scenarios/paper_case3.toml
   --no-recording`` as a user runs it (thread variables unset) while one CPU-bound process
   runs on the 2-core machine; the trees alternate (dense-kernel threads: the CPUs idle
@@ -115,6 +118,24 @@ def components(root: Path, repeat: int) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+EXIT = ("import sys, time\nfrom pushplan.cli import main\nstatus = main(sys.argv[1:])\n"
+        "print(repr(time.time()), flush=True)\nsys.exit(status)\n")
+
+
+def exit_times(trees: dict, repeat: int, tmp: Path) -> dict:
+    """Seconds from the end of ``main`` (a paper-case simulate) to the end of its process
+    (the interpreter's shutdown), per tree, the trees alternating."""
+    python = str(ROOT / ".venv" / "bin" / "python")
+    times: dict = {label: [] for label in trees}
+    for _ in range(repeat):
+        for label, root in trees.items():
+            argv = [python, "-c", EXIT, "simulate", "scenarios/paper_case3.toml", "--no-recording", "--out",
+                    str(tmp / label), "--quiet"]
+            out = subprocess.run(argv, cwd=root, env=user_env(), check=True, capture_output=True, text=True)
+            times[label].append(time.time() - float(out.stdout.strip().splitlines()[-1]))
+    return {label: float(np.median(t)) for label, t in times.items()}
+
+
 def simulate_busy(trees: dict, repeat: int, tmp: Path) -> dict:
     """Process wall times of simulate per tree with one CPU-bound process running."""
     python = str(ROOT / ".venv" / "bin" / "python")
@@ -148,11 +169,14 @@ def main(argv=None) -> None:
                        cwd=root, env=user_env(), check=True)
     measured = {label: components(root, args.repeat) for label, root in trees.items()}
     with tempfile.TemporaryDirectory() as d:
+        exits = exit_times(trees, args.repeat, Path(d))
         busy = simulate_busy(trees, args.repeat, Path(d))
     rows = {}
     for key in ("model_build_first_s", "model_build_s", "stored_energy_s", "recording_mesh_s", "recording_wait_s"):
         this, base = measured["this"][key], measured["base"][key]
         rows[key] = {"this": this, "base": base, "saved_s": base - this, "ratio_this_over_base": this / base}
+    rows["exit_after_simulate_s"] = {**exits, "saved_s": exits["base"] - exits["this"],
+                                     "ratio_this_over_base": exits["this"] / exits["base"]}
     this = measured["this"]
     if "solve_phase_dtrsv_s" in this:  # one change, A/B in this tree's process
         rows["solve_phase_paper_case_s"] = {
