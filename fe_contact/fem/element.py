@@ -122,8 +122,8 @@ def inv3(a: np.ndarray, det: np.ndarray) -> np.ndarray:
 
         inv_ji = (a_(i+1)(j+1) a_(i+2)(j+2) - a_(i+1)(j+2) a_(i+2)(j+1)) / det,
 
-    indices mod 3: 1 ms for the paper mesh's 54000 Gauss points, where
-    ``np.linalg.inv`` takes 11 ms."""
+    indices mod 3: 2.5 ms for the paper mesh's 54000 Gauss points, where
+    ``np.linalg.inv`` takes 11-20 ms."""
     inv = np.empty_like(a)
     for i in range(3):
         i1, i2 = (i + 1) % 3, (i + 2) % 3

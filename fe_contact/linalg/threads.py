@@ -91,7 +91,8 @@ def running_elsewhere() -> int | None:
     """Threads of other processes running or runnable now: the running count of
     ``/proc/loadavg`` less this process's own running threads (its BLAS workers
     spin for a while after a threaded kernel; they are not other work); None
-    without ``/proc`` (not Linux).  About 50 us."""
+    without ``/proc`` (not Linux).  About 0.1 ms: asked once per large dense kernel
+    (:func:`dense_kernel`), never for the small ones."""
     try:
         return max(_running_threads() - _own_running_threads(), 0)
     except (OSError, ValueError, IndexError):
