@@ -20,6 +20,8 @@ MAX_NEWTON_ITER = 1_000
 """``solver.newton_max_iter`` (default 30)."""
 MAX_LOCAL_ITER = 100_000
 """``solver.local_max_iter`` (defaults 100 Newton, 20000 Uzawa)."""
+MAX_ACCELERATION = 50
+"""``solver.acceleration`` (default 4): Anderson differences kept in the Newton loop."""
 
 MAX_PLAN_STEPS = 500
 """``[plan] steps``: commands of a plan (the NLP grows with them)."""

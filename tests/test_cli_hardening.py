@@ -80,6 +80,7 @@ BAD_INPUTS = {
                                           "solver.local_method", "'magic'"),
     "newton_tol zero": scenario_case('local_method = "newton"', "newton_tol = 0.0", "solver.newton_tol", "0.0"),
     "newton_max_iter zero": scenario_case('local_method = "newton"', "newton_max_iter = 0", "solver.newton_max_iter", "0"),
+    "acceleration negative": scenario_case('local_method = "newton"', "acceleration = -1", "solver.acceleration", "-1"),
     "reuse_tangent string": scenario_case('local_method = "newton"', 'reuse_tangent = "yes"',
                                           "solver.reuse_tangent", "'yes'"),
     "malformed toml": scenario_case("size = [0.02, 0.02, 0.01]", "size = [0.02, 0.02,", "malformed TOML", "base.toml"),

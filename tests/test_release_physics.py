@@ -29,11 +29,14 @@ def test_tall_block_completes_with_the_default_settings():
 def test_uzawa_that_fails_falls_back_to_newton():
     """Uzawa needs 850-2000 sweeps per solve on this block, Newton at most 8
     steps: with a limit of 20 Uzawa fails, the step retries with Newton,
-    converges to the reference solution, and its report says so."""
+    converges to the reference solution, and its report says so.  (A warm
+    start that already solves the problem is Uzawa's in zero sweeps: the last
+    solve of the press, warm-started where the solve from an Anderson mix ended.)"""
     reference, _ = run(tall_block(), [Command(dz=-1e-4), PUSH_45])
     state, reports = run(tall_block(local_method="uzawa", local_max_iter=20), [Command(dz=-1e-4), PUSH_45])
     assert all(r.converged for r in reports)
-    assert all(r.contact_methods == ("newton",) for r in reports)
+    assert all(log.contact_method == "newton" or log.contact_iterations == 0 for r in reports for log in r.iterations)
+    assert all("newton" in r.contact_methods for r in reports)
     np.testing.assert_allclose(state.displacement, reference.displacement, rtol=0, atol=1e-12)
 
 

@@ -90,6 +90,13 @@ class SolverOptions:
     refresh_ratio : float
         Contraction factor of the relative residual above which a reused
         tangent may be recomputed.
+    acceleration : int
+        Depth of the Anderson acceleration of the modified-Newton loop
+        (:mod:`fe_contact.stepping.acceleration`): the differences of the last
+        ``acceleration`` iterations mixed into the next iterate; 0 turns it off.
+        Convergence is only declared at a plain iterate, so the converged
+        solution is the same to the tolerances (tested on and off); it does
+        nothing in full Newton or with a frictional pad.
     pad_regularisation : float
         ``beta`` of the regularising springs of a block between the floor and
         a frictional pad (:func:`fe_contact.stepping.held.pad_loading`), as a
@@ -104,6 +111,7 @@ class SolverOptions:
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
     pad_regularisation: float = 1e-2
+    acceleration: int = 4
 
     def __post_init__(self):
         if self.local_method not in LOCAL_METHODS:
@@ -119,6 +127,9 @@ class SolverOptions:
             raise ValueError(f"refresh_ratio must be in (0, 1), got {v}")
         if not _finite("pad_regularisation", self.pad_regularisation) > 0:
             raise ValueError(f"pad_regularisation must be > 0, got {self.pad_regularisation}")
+        v = self.acceleration
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"acceleration must be an integer >= 0, got {v!r}")
         for name in ("local_max_iter", "newton_max_iter"):
             v = getattr(self, name)
             if v is None and name == "local_max_iter":

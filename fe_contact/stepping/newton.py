@@ -36,6 +36,7 @@ from ..fem.elasticity import internal_force
 from ..fem.finite_strain import material_limit
 from ..fem.loads import NO_LOADING, Loading
 from ..contact.local_solver import solve_checked
+from .acceleration import Anderson
 from .model import IterLog, Model, State, Status
 from .tangent import Tangent, refresh_due, refreshed_tangent
 
@@ -78,11 +79,11 @@ def _timed(timings: dict, phase: str):
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
                 consume: bool = False, loading: Loading = NO_LOADING, gripper=None) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
-    the upper face at its commanded pose (``U`` is updated in place).
+    the upper face at its commanded pose (``U`` may be updated in place).
 
     The tangent cached in ``state`` (if of the same free dofs) is reused when
-    ``Model.reuses_tangent``; with ``consume`` it is released at a
-    refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
+    ``Model.reuses_tangent``, with Anderson's mixing (see the module docstring); with
+    ``consume`` it is released at a refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
     (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
     ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
     ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`."""
@@ -91,70 +92,112 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     if tangent is not None and tangent.n_free != model.free_dofs.size:
         tangent = None  # cached before the gripper let go: other free dofs
     workspace = tangent.workspace.copy() if tangent is not None else None
+    anderson = _anderson(model, loading, tangent)
     r = np.array(state.reaction, dtype=float)
-    timings = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0)
-    logs: list[IterLog] = []
-    status, message = Status.NEWTON_NOT_CONVERGED, ""
-    prev_res = rel_res = math.inf
+    timings, logs = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0), []
+    status, message, prev_res, rel_res = Status.NEWTON_NOT_CONVERGED, "", math.inf, math.inf
     n_tangents, at_start, scale0, f_int, min_det = 0, False, 0.0, None, math.nan
     for it in range(opts.newton_max_iter + 1):
         need_tangent = tangent is None or not model.reuses_tangent
+        mixed = anderson is not None and anderson.mixed  # no convergence test at a mix
         if loading.proximal:
             loading.anchor[:] = U.ravel()  # the springs damp the correction from here and pull nowhere
         with _timed(timings, "assembly"):
             f_int, K, min_det = _forces(model, state, U, need_tangent, it, loading)
-        breakdown = _breakdown(f_int, min_det, it)
-        if breakdown is not None:
-            status, message = breakdown
+        failure = _breakdown(f_int, min_det, it)
+        if failure is None:
+            contact_world, f_contact = _contact_forces(model, r)
+            scale0 = _command_force_scale(model, state, U, f_contact, loading) if it == 0 else scale0
+            R, rel_res = _out_of_balance(model, f_int, f_contact, contact_world, scale0)
+        if mixed and (failure is not None or rel_res >= prev_res) and it < opts.newton_max_iter:
+            U, r = anderson.fall_back()  # the mix did no good: back to the plain iterate
+            continue
+        if failure is not None:
+            status, message = failure
             break
-        contact_world, f_contact = _contact_forces(model, r)
-        if it == 0:
-            scale0 = _command_force_scale(model, state, U, f_contact, loading)
-        R, rel_res = _out_of_balance(model, f_int, f_contact, contact_world, scale0)
-        if it > 0 and rel_res <= opts.newton_tol:
+        if it > 0 and not mixed and rel_res <= opts.newton_tol:
             status = Status.CONVERGED
             break
         if it == opts.newton_max_iter:
-            message = (
-                f"Newton loop did not converge in {opts.newton_max_iter} iterations "
-                f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})"
-            )
+            message = (f"Newton loop did not converge in {opts.newton_max_iter} iterations "
+                       f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})")
             break
-        need_tangent = need_tangent or refresh_due(tangent, at_start, it, rel_res, prev_res, opts)
+        need_tangent = need_tangent or refresh_due(tangent, at_start, it, rel_res, prev_res, opts, mixed)
+        # a plain iterate next if the last contraction says it passes the test
+        plain = it == 0 or (it >= 2 and rel_res**2 <= opts.newton_tol * prev_res)
         prev_res = rel_res
         if need_tangent:
             # the old factors go before the new ones come (and before the
             # assembly's temporaries: 1.8 GB at 2.3e5 dofs)
             tangent = workspace = None
-            if consume:
-                state.tangent.release()  # the caller gave the state up
-            if K is None:
-                with _timed(timings, "assembly"):
-                    _, K, _ = loading.tangent(model, U)
             handed, K = [K], None
-            with _timed(timings, "tangent"):
-                tangent, fallback, failure = refreshed_tangent(model, state, handed, it, timings, loading)
+            tangent, fallback, failure = _new_tangent(model, state, U, handed, consume, it, timings, loading)
             if tangent is None:
                 status, message = Status.TANGENT_SINGULAR, failure
                 break
             at_start = at_start or fallback
             n_tangents += 1
             workspace = tangent.workspace.copy()
+            if anderson is not None:
+                anderson.restart(mixing=it == 0)  # another map; taken at an iterate, nearly Newton's
         local, dU_free, failure = _contact_correction(model, state, tangent, workspace, U, R, r, it, timings,
                                                       local_problem_hook, gripper)
         if local is not None:
-            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual), local.method))
+            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual), local.method, mixed))
         if failure is not None:
-            status, message = failure
-            break
-        U_flat = U.ravel()
-        U_flat[model.free_dofs] += dU_free
-        U = U_flat.reshape(-1, 3)
-        r = np.array(local.r, dtype=float)
+            if not mixed or it == opts.newton_max_iter:
+                status, message = failure
+                break
+            U, r = anderson.fall_back()  # the contact solve failed from a mix, not from the plain iterate
+        else:
+            U, r = _next_iterate(model, anderson, U, R, f_contact, dU_free, local.r, plain)
     status, message = _named_cause(model, state, U, status, message)
-    cached = tangent.with_workspace(workspace) if model.reuses_tangent and tangent is not None else None
+    cached = None if not model.reuses_tangent or tangent is None else tangent.with_workspace(
+        workspace, None if anderson is None else anderson.pairs)
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
+
+
+def _new_tangent(model: Model, state: State, U: np.ndarray, handed: list, consume: bool, it: int, timings: dict,
+                 loading: Loading):
+    """:func:`~fe_contact.stepping.tangent.refreshed_tangent` from the stiffness in
+    ``handed`` (assembled at ``U`` if None there), ``state``'s tangent released
+    first with ``consume`` (the caller gave the state up)."""
+    if consume:
+        state.tangent.release()
+    if handed[0] is None:
+        with _timed(timings, "assembly"):
+            handed[0] = loading.tangent(model, U)[1]
+    with _timed(timings, "tangent"):
+        return refreshed_tangent(model, state, handed, it, timings, loading)
+
+
+def _anderson(model: Model, loading: Loading, tangent: Tangent | None) -> Anderson | None:
+    """The step's Anderson mixing (:mod:`fe_contact.stepping.acceleration`) with the
+    differences ``tangent`` carries, or None: ``SolverOptions.acceleration`` 0, full
+    Newton (a map that changes every iteration), or proximal springs (anchored at
+    each iterate: likewise)."""
+    depth = model.options.acceleration
+    if depth == 0 or not model.reuses_tangent or loading.proximal:
+        return None
+    return Anderson(depth, None if tangent is None else tangent.secants)
+
+
+def _next_iterate(model: Model, anderson: Anderson | None, U: np.ndarray, R: np.ndarray, f_contact: np.ndarray,
+                  dU_free: np.ndarray, r_new: np.ndarray, plain: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The plain iterate ``U + dU`` (n_nodes, 3), m, with the contact forces ``r_new``
+    (n_contacts, 3), N, of its local solve, or Anderson's mix (``plain`` False).
+
+    ``U`` is updated in place.  ``p(x) = C^T T^T r_new - f(x)`` of the free dofs,
+    the force the update corrects, is ``-R`` plus the change of the contact forces."""
+    U_flat = U.ravel()
+    U_flat[model.free_dofs] += dU_free
+    U = U_flat.reshape(-1, 3)
+    r = np.array(r_new, dtype=float)
+    if anderson is None:
+        return U, r
+    p = _contact_forces(model, r)[1][model.free_dofs] - f_contact[model.free_dofs] - R
+    return anderson.next_iterate(U, r, model.free_dofs, p, plain)
 
 
 def _named_cause(model: Model, state: State, U: np.ndarray, status: Status, message: str) -> tuple[Status, str]:

@@ -34,13 +34,16 @@ class NodeStatus(enum.IntEnum):
 @dataclass(frozen=True)
 class IterLog:
     """One Newton iteration: relative out-of-balance force before the update,
-    local-solver iterations, final local residual and the local method that
-    solved the contact problem (the chosen one, or its fallback)."""
+    local-solver iterations, final local residual, the local method that
+    solved the contact problem (the chosen one, or its fallback), and whether
+    the iterate was an Anderson mix (:mod:`fe_contact.stepping.acceleration`:
+    its contact forces need not satisfy the law, its residual is no convergence test)."""
 
     newton_residual: float
     contact_iterations: int
     contact_residual: float
     contact_method: str = ""
+    mixed: bool = False
 
 
 @dataclass(frozen=True)

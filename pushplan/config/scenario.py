@@ -63,8 +63,8 @@ from fe_contact.fem.material import LAWS
 from fe_contact.stepping.model import LOCAL_METHODS
 
 from ..errors import InputError, InputWarning
-from ..limits import (MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH, MAX_LOCAL_ITER,
-                      MAX_NEWTON_ITER, MAX_STEPS, MIN_TOLERANCE)
+from ..limits import (MAX_ACCELERATION, MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH,
+                      MAX_LOCAL_ITER, MAX_NEWTON_ITER, MAX_STEPS, MIN_TOLERANCE)
 from .commands import MAX_TURN_DEG, commands_to_list
 from .files import read_toml
 from .validate import Table, integer, number, positive_number
@@ -220,6 +220,8 @@ def _solver(table) -> SolverOptions:
     for k, most in (("local_max_iter", MAX_LOCAL_ITER), ("newton_max_iter", MAX_NEWTON_ITER)):
         if k in t:
             t.integer(k, minimum=1, maximum=most)
+    if "acceleration" in t:
+        t.integer("acceleration", minimum=0, maximum=MAX_ACCELERATION)
     if "pad_regularisation" in t:
         t.number("pad_regularisation", positive=True)
     return SolverOptions(**values)  # every field checked above: a ValueError here is a bug
