@@ -29,14 +29,17 @@ the convergence test.  The contact forces are mixed with the same weights,
 The differences stay valid as long as the tangent does: the next step's map has
 the same ``K0`` and nearly the same Jacobian (the block changes little in a
 step), so they are handed on with the tangent (:class:`SecantPairs`, immutable)
-and a step's first mixes use its predecessors' (on the paper's case 3 the
-steady pushes 4 and 5 then drop three orders of magnitude in one mix).
+and a step's first mixes use its predecessors' (the last push of the paper's
+case 3 drops 600-fold in its first mix, 18-fold in a plain iteration).
 
 A mixed iterate is a trial point of ``G`` only.  Its contact forces need not
 satisfy De Saxce's law (the weights extrapolate: a mix can leave the cone), so
 the loop never declares convergence at one; it goes back to the plain iterate
 ``G(x_k)`` when a mix does not lower the out-of-balance force or breaks down
 (an inverted element, a failed contact solve), and forgets the differences.
+A tangent refreshed at an iterate (nearly Newton's: the next plain iterate
+passes) ends the mixing for the step; full Newton and the frictional pad's
+proximal springs (a map that changes every iteration) are not mixed.
 """
 
 from __future__ import annotations

@@ -18,7 +18,26 @@ displacements and the only Newton nonlinearity is geometric.
 
 The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
 of the upper-face and contact force norms and the command's own out-of-balance
-force.  A breakdown (inverted element, non-finite numbers, a tangent that cannot
+force.
+
+With the tangent kept (modified Newton) the iterates are accelerated by
+Anderson's mixing (``SolverOptions.acceleration``,
+:mod:`fe_contact.stepping.acceleration`): the next iterate may be a combination
+of the last plain ones, ``U_i + dU_i``.  A mix's contact forces, the same
+combination of local solutions, need not satisfy the law for its displacements
+(the weights extrapolate; a mix can leave the cone), so the test is only taken at
+a plain iterate: the one after the last correction, whose ``r`` is a local
+solution for exactly its displacements (linear kinematics).  The converged
+answer thus carries the same certificate, equilibrium to ``newton_tol`` and
+the law to ``local_tol``, as without mixing, and differs from that answer by
+no more than the tolerances allow (tested: the difference falls with them).
+A mix is followed by a plain iterate when the last contraction predicts that
+one passes the test; a mix that does not lower the out-of-balance force, or at
+which the forces or the contact solve break down, is replaced by the plain
+iterate it came from and the differences are forgotten.  A tangent refreshed
+at an iterate (nearly Newton's) ends the mixing for the step.
+
+A breakdown (inverted element, non-finite numbers, a tangent that cannot
 be factorised, a local solve that does not converge) ends it with a
 :class:`~fe_contact.stepping.model.Status`, never an exception.
 """
