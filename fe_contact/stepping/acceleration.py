@@ -101,6 +101,7 @@ class Anderson:
         self.pairs = pairs if pairs is not None else SecantPairs()
         self.mixed = False
         self._mixing = True
+        self._first = True  # the step's first evaluation is to come
         self._last = None  # (G(x), p(x), r(x)) of the step's previous evaluation
         self._plain = None  # (U, r): the plain iterate the current mix replaced
 
@@ -123,16 +124,19 @@ class Anderson:
         """The iterate after the evaluation ``G(x) = U_plain[free]``.
 
         ``U_plain`` (n_nodes, 3), m, and ``r_plain`` (n_contacts, 3), N, are the
-        plain iterate; ``x`` (n_free,) the point it was evaluated at; ``p``
-        (n_free,) ``p(x)``, N.  With ``plain`` (or no differences yet) the plain
-        iterate is returned, else the mix.
+        plain iterate ``G(x)`` and its contact forces, ``p`` (n_free,), N, is
+        ``p(x)`` at the point ``x`` it came from.  With ``plain`` (or no
+        differences yet) the plain iterate is returned, else the mix.
         """
         g = U_plain.ravel()[free]
         r = r_plain.ravel()
         if self._last is not None:
             g0, p0, r0 = self._last
             self.pairs = self.pairs.added(g - g0, p - p0, r - r0, self.depth)
-        self._last = (g.copy(), p, r.copy())
+        # the step's first correction, from the predictor, also settles the contact
+        # statuses: its difference to the next is no secant of the map near the solution
+        self._last = None if self._first else (g.copy(), p, r.copy())
+        self._first = False
         self.mixed = self._mixing and not plain and len(self.pairs) > 0
         if not self.mixed:
             self._plain = None
