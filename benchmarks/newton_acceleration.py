@@ -13,8 +13,8 @@ Newton iterations summed over every step of the process).
 
 Each figure is a child process (``python -c`` in the tree's root, so the tree's
 packages are imported; thread variables set to one thread); CPU time is the child's
-own, of the stepping (model build excluded) or of the whole plan.  Medians of
-``--repeat`` runs.  Writes ``benchmarks/results/newton_acceleration.json``.
+own, of the stepping (model build excluded; each step's too) or of the whole plan.
+Medians of ``--repeat`` runs (every run's CPU kept in the JSON).  Writes ``benchmarks/results/newton_acceleration.json``.
 
     python benchmarks/newton_acceleration.py [--base /tmp/main-checkout] [--repeat 3]
 """
@@ -50,11 +50,14 @@ def pushes(model, press, push, angle, n=4):
 
 def stepping(model, commands):
     fe_contact.warm_up()
-    c0 = time.process_time()
-    _, reports = run(model, commands)
-    cpu = time.process_time() - c0
-    assert all(r.converged for r in reports), reports[-1].message
-    return {"iterations": [r.newton_iterations for r in reports], "cpu_s": cpu,
+    state, reports, cpu = fe_contact.initial_state(model), [], []
+    for command in commands:
+        c0 = time.process_time()
+        state, report = fe_contact.step(model, state, command, consume=True)
+        cpu.append(time.process_time() - c0)
+        reports.append(report)
+        assert report.converged, report.message
+    return {"iterations": [r.newton_iterations for r in reports], "cpu_s": sum(cpu), "cpu_steps_s": cpu,
             "twist_deg": math.degrees(reports[-1].twist), "lower_centroid": reports[-1].lower_centroid.tolist()}
 
 def plan(name, tmp):
@@ -140,14 +143,19 @@ def main(argv=None) -> None:
         for label, results in by_variant.items():
             row[label] = {"iterations": results[0]["iterations"], "total_iterations": sum(results[0]["iterations"]),
                           "cpu_s": float(np.median([r["cpu_s"] for r in results])),
-                          **{k: v for k, v in results[0].items() if k not in ("iterations", "cpu_s")}}
+                          "cpu_runs_s": [r["cpu_s"] for r in results],
+                          **{k: v for k, v in results[0].items() if k not in ("iterations", "cpu_s", "cpu_steps_s")}}
+            if "cpu_steps_s" in results[0]:  # medians step by step
+                row[label]["cpu_steps_s"] = np.median([r["cpu_steps_s"] for r in results], axis=0).tolist()
         for other in ("this_off", "base"):
             if other in row:
                 row[f"iterations_this_over_{other}"] = row["this"]["total_iterations"] / row[other]["total_iterations"]
                 row[f"cpu_this_over_{other}"] = row["this"]["cpu_s"] / row[other]["cpu_s"]
         figures[case] = row
         text = "  ".join(f"{label}: {row[label]['iterations']} = {row[label]['total_iterations']} it, "
-                         f"{row[label]['cpu_s']:.3f} s" for label in by_variant)
+                         f"{row[label]['cpu_s']:.3f} s"
+                         + (f" (steps 2-: {sum(row[label]['cpu_steps_s'][1:]):.3f} s)" if "cpu_steps_s" in row[label]
+                            else "") for label in by_variant)
         print(f"{case:>17}  {text}")
     result = {"load_average_before": load_before, "load_average_after": os.getloadavg(), "repeat": args.repeat,
               "base": None if args.base is None else str(args.base.resolve()), "figures": figures}
