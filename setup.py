@@ -10,6 +10,6 @@ from setuptools import Extension, setup
 
 FLAGS = [] if sys.platform == "win32" else ["-ffp-contract=off"]
 KERNELS = [Extension(f"fe_contact.{layer}._kernels", [f"fe_contact/{layer}/_kernels.pyx"], extra_compile_args=FLAGS)
-           for layer in ("linalg", "contact")]
+           for layer in ("linalg", "fem", "contact")]
 
 setup(ext_modules=cythonize(KERNELS, language_level=3))

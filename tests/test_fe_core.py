@@ -725,3 +725,38 @@ def test_batched_3x3_inverse_is_the_inverse():
     scale = np.linalg.norm(a, axis=(1, 2)) * np.linalg.norm(inv, axis=(1, 2))
     assert np.all(np.abs(a @ inv - np.eye(3)).max(axis=(1, 2)) <= 1e-13 * scale)
     assert np.allclose(inv, np.linalg.inv(a), rtol=1e-12, atol=0.0)
+
+
+def test_compiled_stvk_force_kernel_against_the_general_law_and_its_checks():
+    """The compiled St Venant-Kirchhoff force (fe_contact.fem._kernels.stvk_forces, the
+    hex8 path of ``internal_force``) against fe_contact.fem.finite_strain's general
+    kernel on a large distorted state (H^T H matters), its smallest ``det F`` too; a
+    NaN displacement gives a NaN ``det F`` (not the smallest finite one), and arguments
+    that do not fit are a ValueError, not a read outside the arrays."""
+    from fe_contact.fem._kernels import stvk_forces
+    from fe_contact.fem.elasticity import Material, internal_force
+    from fe_contact.fem.finite_strain import element_forces
+
+    mesh = block_mesh((0.02, 0.03, 0.01), (3, 4, 2))
+    geo = element_geometry(mesh, 3)
+    material = Material(210e9, 0.3)
+    U = 5e-4 * np.random.default_rng(11).standard_normal((mesh.n_nodes, 3))
+    f, min_det = internal_force(geo, mesh.elements, U, material)
+    fe, det_ref = element_forces(geo.grad, geo.dvol, U[mesh.elements], "stvk", material.lame_lambda,
+                                 material.lame_mu, False)
+    f_ref = np.bincount((3 * mesh.elements[:, :, None] + np.arange(3)).ravel(), fe.ravel(), mesh.n_dofs)
+    assert 0.2 < det_ref < 0.95  # a state far from the linear one
+    assert np.abs(f - f_ref).max() <= 1e-12 * np.abs(f_ref).max()
+    assert min_det == pytest.approx(det_ref, rel=1e-13)
+
+    elements = np.ascontiguousarray(mesh.elements, dtype=np.int64)
+    U_nan = U.copy()
+    U_nan[mesh.elements[0, 0]] = np.nan
+    assert np.isnan(stvk_forces(geo.grad_rows, geo.dvol, elements, U_nan, 1.0, 1.0, np.zeros(U.size)))
+    bad = elements.copy()
+    bad[-1, 3] = mesh.n_nodes
+    for args in ((geo.grad_rows, geo.dvol, bad, U, np.zeros(U.size)),
+                 (geo.grad_rows, geo.dvol[:-1], elements, U, np.zeros(U.size)),
+                 (geo.grad_rows, geo.dvol, elements, U, np.zeros(U.size - 3))):
+        with pytest.raises(ValueError, match="stvk_forces"):
+            stvk_forces(args[0], args[1], args[2], args[3], 1.0, 1.0, args[4])

@@ -92,13 +92,16 @@ def test_rest_after_the_release_of_a_sticking_pad():
 
 
 def test_rest_after_the_release_of_a_sliding_pad():
-    # the pad slides over the block as its load falls and its contacts open one by one; the check
-    # holds to 7e-5 here, not 1e-6 (measured 6.9e-5 with error_tol 0.3 and 0.5, 1.5e-5 with 0.2,
-    # the same at steps 1e-3 to 1e-5; 7.7e-7 at mu 0.17; it fails at mu 0.25, where the lift's
-    # secant of the pad load degenerates: docs/derivatives.md)
+    # the pad slides over the block as its load falls and its contacts open one by one; at the
+    # coarse error control of RELEASE (0.3) the check holds only to 7.9e-5, and rounding-level
+    # changes of the forces move it (2.1e-4 after the compiled force kernel): the rest there is
+    # a property of the schedule's choices; at error_tol 0.1 it holds to 6.5e-7 before and after
+    # (the same at steps 1e-4 and 1e-5; it fails at mu 0.25, where the lift's secant of the pad
+    # load degenerates: docs/derivatives.md)
     m = model(0.15)
-    check = check_derivatives(m, LIFT_PUSH, release=RELEASE, rel_step=REL_STEP, parameters=("mu_x", "density"))
-    assert check.max_error <= 1e-4, check.worst()
+    check = check_derivatives(m, LIFT_PUSH, release=Release("lift", 3, error_tol=0.1), rel_step=REL_STEP,
+                              parameters=("mu_x", "density"))
+    assert check.max_error <= 1e-5, check.worst()
 
 
 def test_dropping_the_pad_lifts_heights_fails(monkeypatch):

@@ -107,8 +107,8 @@ def test_own_running_threads_are_not_other_work(monkeypatch):
 
 
 def test_compiled_kernels_are_built_ahead_of_time():
-    """The four kernels of fe_contact (cone projection, Alart-Curnier, Gauss-Seidel
-    sweep, extend-add) are functions of the extension modules built at install from
+    """The five kernels of fe_contact (cone projection, Alart-Curnier, Gauss-Seidel
+    sweep, extend-add, St Venant-Kirchhoff force) are functions of the extension modules built at install from
     ``_kernels.pyx`` (issue 32), so nothing is compiled or loaded at a first call: in a
     fresh process, importing fe_contact and running ``warm_up`` (every kernel called)
     imports no JIT compiler."""
@@ -117,11 +117,13 @@ def test_compiled_kernels_are_built_ahead_of_time():
 
     code = ("import importlib.machinery, sys\nimport fe_contact\n"
             "from fe_contact.contact import alart_curnier, friction, uzawa\nfrom fe_contact.linalg import cholesky\n"
-            "ks = [alart_curnier._ac_kernel, cholesky._extend_add, friction._project_kernel, uzawa._gauss_seidel_sweeps]\n"
+            "from fe_contact.fem import elasticity\n"
+            "ks = [alart_curnier._ac_kernel, cholesky._extend_add, friction._project_kernel, uzawa._gauss_seidel_sweeps,"
+            " elasticity.stvk_forces]\n"
             "fe_contact.warm_up()\n"
             "files = {sys.modules[k.__module__].__file__ for k in ks}\n"
             "print(sorted(k.__module__ for k in ks), all(f.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES))"
             " for f in files), sorted(m for m in ('numba', 'llvmlite') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
-    kernels = ["fe_contact.contact._kernels"] * 3 + ["fe_contact.linalg._kernels"]
+    kernels = ["fe_contact.contact._kernels"] * 3 + ["fe_contact.linalg._kernels", "fe_contact.fem._kernels"]
     assert out == f"{sorted(kernels)} True []"
