@@ -44,10 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import write_results
+from _common import user_env, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS")
 BURN = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
 
 COMPONENTS = r'''
@@ -105,10 +104,6 @@ out["recording_wait_s"] = float(np.median(waits))
 out["recording_waits_s"] = waits
 print(json.dumps(out))
 '''
-
-
-def user_env() -> dict:
-    return {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
 
 
 def components(root: Path, repeat: int) -> dict:

@@ -15,7 +15,7 @@ tree against the tree before, in one run, alternating A and B:
   what a quiet core would give).
 
 Processes run as a user runs them: ``python -m pushplan.cli`` from the tree's root, the
-thread variables the Makefile sets removed.  The load average is recorded before and
+thread variables the Makefile sets and PYTHONDONTWRITEBYTECODE removed (``_common.user_env``).  The load average is recorded before and
 after.  Writes ``benchmarks/results/loop_times.json``.
 
     python benchmarks/loop_times.py --base ../perf-base [--base ../perf-main] [--repeat 3] [--periods 100]
@@ -38,10 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import write_results
+from _common import user_env, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS")
 
 COSIM_CHILD = """
 import json, math, sys, time
@@ -63,10 +62,6 @@ assert record.status.value == "completed", record.status
 print(json.dumps({"periods": len(record.periods), "loop_wall_s": record.wall_s, "rate_wall": record.rate_periods_per_s,
                   "loop_cpu_s": loop_cpu, "rate_cpu": len(record.periods) / loop_cpu}))
 """
-
-
-def user_env() -> dict:
-    return {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
 
 
 class Tree:

@@ -12,7 +12,7 @@ tree before, in one run (issue 32 item 3):
 Each command is a process started as the installed ``pushplan`` script starts it
 (``from pushplan.cli import main``), from the tree's root with the tree's own
 ``.venv/bin/python`` (this tree's where a tree has none), the thread variables the
-Makefile sets removed; the trees alternate run by run.  This tree runs also through its
+Makefile sets and PYTHONDONTWRITEBYTECODE removed (``_common.user_env``); the trees alternate run by run.  This tree runs also through its
 installed ``.venv/bin/pushplan``.  Wall time (``perf_counter`` around the process) and
 CPU time (user + system of the process and its children, ``RUSAGE_CHILDREN``); medians of
 ``--repeat`` runs; the load average before and after.  Writes
@@ -37,10 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import write_results
+from _common import user_env, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS")
 SCRIPT = "import sys\nfrom pushplan.cli import main\nsys.argv[0] = 'pushplan'\nsys.exit(main())\n"
 FIRST_KERNEL = ("import numpy as np\nimport fe_contact\nfrom fe_contact.contact.friction import _project\n"
                 "_project(np.ones((1, 3)), np.ones(1), np.ones(1))\n")
@@ -50,10 +49,6 @@ FLOORS = {
     "fe_contact_first_kernel": ["-c", FIRST_KERNEL],
     "import_rerun": ["-c", "import rerun, rerun.blueprint"],
 }
-
-
-def user_env() -> dict:
-    return {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
 
 
 def timed(argv: list[str], cwd: Path) -> tuple[float, float]:

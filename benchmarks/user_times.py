@@ -28,16 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import write_results
+from _common import user_env, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "FE_CONTACT_DENSE_THREADS")
 BURN = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
-
-
-def user_env(**extra) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
-    return {**env, **extra}
 
 
 def timed(argv, env=None) -> tuple[float, str]:
