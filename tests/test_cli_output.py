@@ -60,6 +60,16 @@ def test_table_and_progress_read_as_a_log(scenario, tmp_path, capsys):
     assert "MN" in press or "kN" in press  # ~1e5-1e6 N for a steel block pressed 0.1 mm
 
 
+@pytest.mark.parametrize("recording", [True, False])
+def test_the_last_line_names_every_file_written(scenario, tmp_path, capsys, recording):
+    out = tmp_path / "o"
+    assert main(["simulate", str(scenario), "--out", str(out)] + ([] if recording else ["--no-recording"])) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    files = sorted(p.name for p in out.iterdir())
+    assert files == sorted(["summary.json", "fields.npz"] + (["recording.rrd"] if recording else []))
+    assert last.startswith("wrote ") and all(str(out / name) in last for name in files)
+
+
 @pytest.mark.parametrize("value, text", [(60.2, "60.2 N"), (9.0898e5, "909 kN"), (2.5e-3, "2.5 mN"),
                                          (0.0, "0 N"), (-1.5e7, "-15 MN")])
 def test_engineering_prefixes(value, text):

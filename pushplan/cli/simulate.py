@@ -69,6 +69,7 @@ def cmd_simulate(args) -> int:
     from ..config.fingerprint import check_plan_scenario
     from ..outputs.transaction import output_file_lock, output_transaction
     from ..run import simulate
+    from ..run.simulate import RECORDING_FILE
 
     scenario = load_scenario(args.scenario)
     commands = None
@@ -101,8 +102,10 @@ def cmd_simulate(args) -> int:
     if not args.quiet:
         print_steps(run.summary.steps)
         print_rest(run.summary)
-        print(f"wrote {out.out / 'summary.json'} and {out.out / 'fields.npz'}"
-              + (f" and {args.observations}" if args.observations else "") + f" ({run.summary.elapsed_s:.2f} s)")
+        written = [out.out / "summary.json", out.out / "fields.npz"]
+        written += [out.out / RECORDING_FILE] if not args.no_recording else []
+        written += [args.observations] if args.observations else []
+        print(f"wrote {', '.join(map(str, written[:-1]))} and {written[-1]} ({run.summary.elapsed_s:.2f} s)")
     return exit_status(run)
 
 
