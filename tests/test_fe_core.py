@@ -760,3 +760,23 @@ def test_compiled_stvk_force_kernel_against_the_general_law_and_its_checks():
                  (geo.grad_rows, geo.dvol, elements, U, np.zeros(U.size - 3))):
         with pytest.raises(ValueError, match="stvk_forces"):
             stvk_forces(args[0], args[1], args[2], args[3], 1.0, 1.0, args[4])
+
+
+def test_tangent_in_batches_of_elements_is_the_tangent(monkeypatch):
+    """``_element_tangents`` a few elements at a time (the last batch short) gives the
+    tangent of all at once to the bit, and that tangent is the derivative of the force."""
+    from fe_contact.fem import elasticity
+    from fe_contact.fem.elasticity import Material, internal_force, internal_force_and_tangent
+
+    mesh = block_mesh((0.02, 0.03, 0.01), (3, 2, 2))  # 12 elements: batches of 5, 5, 2
+    geo, material = element_geometry(mesh, 3), Material(210e9, 0.3)
+    pattern = sparsity_pattern(mesh.elements, mesh.n_nodes)
+    U = 2e-4 * np.random.default_rng(5).standard_normal((mesh.n_nodes, 3))
+    whole = internal_force_and_tangent(geo, mesh.elements, U, material, pattern)[1]
+    monkeypatch.setattr(elasticity, "_TANGENT_CHUNK", 5)
+    batched = internal_force_and_tangent(geo, mesh.elements, U, material, pattern)[1]
+    assert np.array_equal(batched.data, whole.data)
+    dU, h = np.random.default_rng(6).standard_normal(U.shape), 1e-7
+    fd = (internal_force(geo, mesh.elements, U + h * dU, material)[0]
+          - internal_force(geo, mesh.elements, U - h * dU, material)[0]) / (2 * h)
+    assert np.abs(batched @ dU.ravel() - fd).max() <= 1e-6 * np.abs(fd).max()
