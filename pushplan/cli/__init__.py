@@ -79,8 +79,8 @@ def _leave_objects_to_the_os() -> None:
     """At interpreter exit (an ``atexit`` handler, so after the command and before the
     interpreter's finalisation): freeze the objects alive then out of the garbage
     collector (``gc.freeze``), so the shutdown's full collection does not traverse every
-    one of them (numpy, scipy, numba, the model): 0.23-0.43 s after a ``simulate`` of the
-    paper case, 0.05-0.07 s with it (loaded 2-core machine).  Objects are still released
+    one of them (numpy, scipy, the model): 0.23-0.43 s after a ``simulate`` of the paper
+    case, 0.05-0.07 s with it (loaded 2-core machine, with numba then imported too).  Objects are still released
     by reference counting and the interpreter still flushes the standard streams; only
     garbage in reference cycles is left to the OS, as the process ends.  In a process that
     goes on after ``main`` (tests) it runs once, at that process's exit."""
