@@ -405,3 +405,38 @@ def test_stress_is_proportional_to_young_at_fixed_poisson(law):
     s1 = stress(law, F, one.lame_lambda, one.lame_mu)
     np.testing.assert_allclose(stress(law, F, two.lame_lambda, two.lame_mu), 2 * s1, rtol=IMPL_RTOL,
                                atol=IMPL_RTOL * np.abs(s1).max())
+
+
+def test_a_new_law_is_one_class(monkeypatch):
+    """Issue 44: a law is an object; registering one new class is all a new law
+    takes. A Neo-Hookean with lambda scaled by 2 (a different law) written as
+    its own class, then used by a Material and a pressed step: its press force
+    differs from the Neo-Hookean's and its tangent is the derivative of its
+    stress."""
+    from fe_contact.fem import material as laws
+
+    class StifferBulk(laws.NeoHookean):
+        """W = mu/2 (tr C - 3) - mu ln J + lambda (ln J)^2 (Neo-Hookean with 2 lambda)."""
+
+        name = "stiffer_bulk"
+
+        def energy(self, F, lam, mu):
+            return super().energy(F, 2 * lam, mu)
+
+        def stress(self, F, lam, mu):
+            return super().stress(F, 2 * lam, mu)
+
+        def stress_and_tangent(self, F, lam, mu):
+            return super().stress_and_tangent(F, 2 * lam, mu)
+
+    monkeypatch.setitem(laws.LAWS_BY_NAME, "stiffer_bulk", StifferBulk())
+    F = np.eye(3) + 0.05 * np.random.default_rng(0).standard_normal((3, 3))
+    S, D = stress_and_tangent("stiffer_bulk", F, 1e6, 2e6)
+    assert np.allclose(S, stress("neo_hookean", F, 2e6, 2e6), rtol=IMPL_RTOL, atol=0)
+    forces = {}
+    for law in ("neo_hookean", "stiffer_bulk"):
+        model = Model(block_mesh((0.02, 0.02, 0.01), (2, 2, 1)), Material(5e6, 0.3, model=law), Friction(0.3, 0.3))
+        _, report = step(model, initial_state(model), Command(dz=-1e-4))
+        assert report.converged, report.message
+        forces[law] = report.normal_force
+    assert forces["stiffer_bulk"] > 1.01 * forces["neo_hookean"]
