@@ -37,7 +37,9 @@ from .fem.elasticity import Material
 from .contact.friction import local_frame, project_elliptic_cone
 from .fem.loads import GRAVITY, Gripper
 from .contact.local_solver import solve_local
-from .fem.mesh import BlockMesh, block_mesh
+from .fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
+from .fem.material import LAWS
+from .fem.mesh import BlockMesh, block_mesh, surface_quads
 from .stepping.model import (
     Command,
     Friction,
@@ -52,9 +54,12 @@ from .stepping.model import (
     build_model,
     initial_state,
 )
+from .stepping.model import LOCAL_METHODS
+from .stepping.pose import ZERO_MOTION, face_centroid_displacement, planar_yaw, twist_angle, wrap_angle
 from .stepping.release import Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
-from .stepping.derivatives import RolloutDerivatives, check_derivatives, rollout_derivatives
+from .stepping.derivatives import (PARAMETERS, RolloutDerivatives, applicable_parameters, check_derivatives,
+                                   rollout_derivatives)
 from .stepping.sequence import StepSequence, release_to_rest, run, run_release
 from .stepping.step import step
 from .stepping.warmup import warm_up
@@ -62,40 +67,61 @@ from .linalg.threads import limit_blas_threads
 
 limit_blas_threads()  # one BLAS thread unless the user chose (fe_contact.linalg.threads)
 
+
+def __getattr__(name):
+    """``write_local_problem`` (FCLIB HDF5, :mod:`fe_contact.io.fclib`) on first use: it imports h5py."""
+    if name == "write_local_problem":
+        from .io.fclib import write_local_problem
+        return write_local_problem
+    raise AttributeError(f"module 'fe_contact' has no attribute {name!r}")
+
 __all__ = [
+    "applicable_parameters",
+    "AUTO_FBAR_POISSON",
+    "block_mesh",
     "BlockMesh",
+    "build_model",
+    "check_derivatives",
     "Command",
+    "ELEMENTS",
+    "face_centroid_displacement",
     "Friction",
     "GRAVITY",
     "Gripper",
+    "initial_state",
     "IterLog",
+    "LAWS",
+    "local_frame",
+    "LOCAL_METHODS",
     "Material",
     "Model",
     "NodeStatus",
+    "PARAMETERS",
+    "planar_yaw",
+    "project_elliptic_cone",
     "Release",
+    "release_to_rest",
     "ReleaseSchedule",
     "Rest",
-    "RolloutDerivatives",
-    "RolloutGradient",
-    "SolverOptions",
-    "State",
-    "Status",
-    "StepReport",
-    "StepSequence",
-    "TangentCache",
-    "block_mesh",
-    "build_model",
-    "check_derivatives",
-    "initial_state",
-    "local_frame",
-    "project_elliptic_cone",
-    "release_to_rest",
     "rest_check",
     "rollout_derivatives",
     "rollout_gradient",
+    "RolloutDerivatives",
+    "RolloutGradient",
     "run",
     "run_release",
     "solve_local",
+    "SolverOptions",
+    "State",
+    "Status",
     "step",
+    "StepReport",
+    "StepSequence",
+    "surface_quads",
+    "TangentCache",
+    "twist_angle",
     "warm_up",
+    "wrap_angle",
+    "write_local_problem",
+    "ZERO_MOTION",
 ]

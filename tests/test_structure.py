@@ -74,6 +74,25 @@ def test_fe_contact_imports_nothing_from_pushplan_mujoco_or_rerun():
             assert name.split(".")[0] not in ("pushplan", "mujoco", "rerun"), (path, name)
 
 
+def test_pushplan_uses_fe_contact_through_its_public_face_only():
+    """Issue 44: pushplan imports fe_contact's names from ``fe_contact`` itself (its
+    ``__init__``), never from a module below it, and every name it takes is in ``__all__``."""
+    import fe_contact
+
+    deep, missing = [], []
+    for path in modules("pushplan"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("fe_contact"):
+                if node.module != "fe_contact":
+                    deep.append(f"{path.relative_to(ROOT)}:{node.lineno} from {node.module}")
+                missing += [f"{path.relative_to(ROOT)}: {a.name}" for a in node.names if a.name not in fe_contact.__all__]
+            elif isinstance(node, ast.Import):
+                deep += [f"{path.relative_to(ROOT)}:{node.lineno} import {a.name}" for a in node.names
+                         if a.name.startswith("fe_contact.")]
+    assert not deep, "\n".join(deep)
+    assert not missing, "\n".join(missing)
+
+
 @pytest.mark.parametrize("package", ["pushplan", "fe_contact"])
 def test_no_import_cycle(package):
     """Imports inside functions count: ``imported_modules`` walks the whole tree."""
@@ -198,3 +217,37 @@ def test_one_orthotropy_frame():
     defs = sources_matching(r"def (local_frame|rotation_matrix)\(", "fe_contact") + \
         sources_matching(r"def (local_frame|rotation_matrix)\(")
     assert defs == ["fe_contact/contact/friction.py"]
+
+
+def readme_map() -> dict[str, str]:
+    """The README's architecture map: the text of each folder's section, by folder path."""
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Architecture.*?```text\n(.*?)```", text, re.S)
+    assert block, "README.md has no ```text map under '## Architecture'"
+    sections, top, current = {}, "", None
+    for line in block.group(1).splitlines():
+        m = re.match(r"^( *)(\w+)/", line)
+        if m and len(m.group(1)) <= 2:
+            top = m.group(2) if not m.group(1) else top
+            current = m.group(2) if not m.group(1) else f"{top}/{m.group(2)}"
+            sections[current] = line
+        elif current is not None:
+            sections[current] += "\n" + line
+    return sections
+
+
+def test_readme_map_names_every_fe_contact_module_and_pushplan_room():
+    """Issue 44: every module of fe_contact (.py and compiled .pyx) is named in its folder's section
+    of the README's map, with its job; every pushplan subpackage (room) has a line."""
+    sections = readme_map()
+    missing = []
+    for path in sorted((ROOT / "fe_contact").rglob("*.py")) + kernel_sources():
+        rel = path.relative_to(ROOT / "fe_contact")
+        if rel.name == "__init__.py" or len(rel.parts) != 2:
+            continue
+        name = rel.name if path.suffix == ".pyx" else rel.stem
+        if not re.search(rf"(?<![\w.]){re.escape(name)}(?![\w])", sections.get(f"fe_contact/{rel.parts[0]}", "")):
+            missing.append(str(rel))
+    rooms = [p.name for p in sorted((ROOT / "pushplan").iterdir()) if (p / "__init__.py").exists()]
+    missing += [f"pushplan/{room}/" for room in rooms if f"pushplan/{room}" not in sections]
+    assert not missing, "not in the README's map: " + ", ".join(missing)

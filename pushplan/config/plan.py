@@ -36,8 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fe_contact import Command
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import Command, wrap_angle
 
 from ..errors import InputError
 from ..limits import (MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_LENGTH, MAX_PLAN_STEPS, MAX_ROLLOUTS, MIN_PLAN_STEP,

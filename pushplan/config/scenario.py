@@ -57,10 +57,8 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fe_contact import BlockMesh, Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
-from fe_contact.fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
-from fe_contact.fem.material import LAWS
-from fe_contact.stepping.model import LOCAL_METHODS
+from fe_contact import (AUTO_FBAR_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
+                        Model, Release, SolverOptions, block_mesh)
 
 from ..errors import InputError, InputWarning
 from ..limits import (MAX_ACCELERATION, MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH,

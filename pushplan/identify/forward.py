@@ -10,8 +10,7 @@ import time
 
 import numpy as np
 
-from fe_contact import rollout_derivatives
-from fe_contact.stepping.derivatives import applicable_parameters
+from fe_contact import applicable_parameters, rollout_derivatives
 
 from ..config.observations import Observations
 from ..config.scenario import Scenario

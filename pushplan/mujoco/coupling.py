@@ -46,8 +46,7 @@ import time
 
 import numpy as np
 
-from fe_contact import Command, Model, State, StepReport, initial_state
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import Command, Model, State, StepReport, initial_state, wrap_angle
 
 from ..errors import InputError
 from ..run.driver import drive

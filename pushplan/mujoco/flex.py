@@ -13,8 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fe_contact import Command
-from fe_contact.stepping.pose import face_centroid_displacement, planar_yaw
+from fe_contact import Command, face_centroid_displacement, planar_yaw
 
 from .frames import quat_z
 from .mjmodel import mujoco_module

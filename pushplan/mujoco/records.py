@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact.stepping.pose import twist_angle
+from fe_contact import twist_angle
 
 
 @dataclass(frozen=True)

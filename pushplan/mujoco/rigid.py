@@ -13,8 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fe_contact import Command
-from fe_contact.stepping.pose import ZERO_MOTION, wrap_angle
+from fe_contact import ZERO_MOTION, Command, wrap_angle
 
 from .mjmodel import find_object, mocap_index, mujoco_module
 from .records import ComparisonStep

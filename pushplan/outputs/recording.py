@@ -89,7 +89,7 @@ from pathlib import Path
 import numpy as np
 
 from fe_contact import BlockMesh, StepReport
-from fe_contact.fem.mesh import surface_quads
+from fe_contact import surface_quads
 
 from ..config.commands import command_to_dict
 from . import recording_scene as scene

@@ -28,8 +28,7 @@ from dataclasses import dataclass
 import casadi
 import numpy as np
 
-from fe_contact import Model, State, rollout_derivatives
-from fe_contact.stepping.derivatives import PARAMETERS, applicable_parameters  # noqa: F401 (PARAMETERS: re-exported)
+from fe_contact import PARAMETERS, Model, State, applicable_parameters, rollout_derivatives  # noqa: F401 (PARAMETERS: re-exported)
 
 from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..config.plan import press_commands

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import wrap_angle
 
 from ..config.plan import PlanSpec
 

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import wrap_angle
 
 from ..config.plan import PlanSpec
 

@@ -88,7 +88,7 @@ class FclibExport:
         self._last = (W, q, solution)
 
     def step(self, run, report: StepReport) -> None:
-        from fe_contact.io.fclib import write_local_problem
+        from fe_contact import write_local_problem
 
         if self._last is None:
             return

@@ -94,7 +94,7 @@ def deformed_figure(runs: list[Run], scenarios: list[Scenario], path: Path) -> P
     from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from fe_contact.fem.mesh import surface_quads
+    from fe_contact import surface_quads
 
     model = runs[0].model
     quads = surface_quads(model.mesh)
