@@ -2,7 +2,8 @@
 
 n = 32 command sequences of T = 6 pushes (random around the ``plan_rubber`` target, the
 draws of a sampling MPC) from the pressed block, on the planning mesh of ``plan_rubber``
-(6 x 6 x 2, quadrature 2) and on its verification mesh (12 x 12 x 4, quadrature 3):
+(6 x 6 x 2, quadrature 2) and, with ``--verification``, on its verification mesh
+(12 x 12 x 4, quadrature 3; about 20 minutes):
 
 - ``single``: 32 ``PushModel.rollout`` calls one after the other in this process;
 - ``pool_P``: ``PushModel.batch_rollouts`` on P = 1, 2 and all CPUs, timed warm (the
@@ -16,7 +17,7 @@ draws of a sampling MPC) from the pressed block, on the planning mesh of ``plan_
 Throughput = rollouts / wall time of the process, in total and per core (total / P).
 The load average before and after is recorded: the machine is shared.
 
-    python benchmarks/batch_rollouts.py [--quick]
+    python benchmarks/batch_rollouts.py [--quick] [--verification]
 
 Writes ``benchmarks/results/batch_rollouts.json``.
 """
@@ -103,7 +104,7 @@ def main() -> None:
     scenario = load_scenario(scenario_path("plan_rubber.toml"))
     results = {"n": N, "T": T, "load_before": os.getloadavg()}
     for label, (elements, quadrature) in MESHES.items():
-        if quick and label.startswith("verification"):
+        if label.startswith("verification") and "--verification" not in sys.argv:
             continue
         push = PushModel(scenario.model(elements, quadrature), press_commands(scenario))
         push.pressed  # noqa: B018 (the press, once, outside the timings)

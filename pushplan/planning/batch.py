@@ -35,6 +35,8 @@ from multiprocessing.connection import wait
 from ..errors import SolverFailure
 from .rollouts import PlanningError
 
+METHODS = {"poses": "rollout", "forces": "rollout_with_forces", "jacobian": "rollout_with_jacobian"}
+"""The :class:`PushModel` method a worker runs for each kind of batch."""
 STATE_CAP = 8
 """Start states a worker holds at once (the oldest is dropped beyond it)."""
 
@@ -77,7 +79,7 @@ def _serve(conn, push) -> None:
 
 def _run_chunk(push, kind: str, start, chunk) -> list:
     """``(index, result or the exception)`` of each ``(index, commands)`` of ``chunk``."""
-    run = push.rollout if kind == "poses" else push.rollout_with_jacobian
+    run = getattr(push, METHODS[kind])
     out = []
     for index, commands in chunk:
         try:
@@ -166,9 +168,8 @@ class RolloutPool:
         return key
 
     def run(self, kind: str, batch, start) -> list:
-        """Results of ``kind`` (``"poses"``: ``PushModel.rollout``; ``"jacobian"``:
-        ``PushModel.rollout_with_jacobian``) for each command array of ``batch``
-        from ``start``, in order.
+        """Results of ``kind`` (a key of :data:`METHODS`) for each command array of
+        ``batch`` from ``start``, in order.
 
         Raises
         ------

@@ -192,11 +192,22 @@ class PushModel:
         ------
         InputError, PlanningError
         """
+        return self.rollout_with_forces(commands, start)[0]
+
+    def rollout_with_forces(self, commands, start=None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rollout`'s poses (K, 3) and the force of the gripper on the block
+        after each command (K, 3), N (world).
+
+        Raises
+        ------
+        InputError, PlanningError
+        """
         start = self._start(start)
         state = start.state if isinstance(start, RolloutDerivatives) else start
         run = self._drive(self.commands(commands), state)
         self.rollouts_run += 1
-        return np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in run.reports])
+        poses = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in run.reports])
+        return poses, np.array([r.upper_force for r in run.reports])
 
     def rollout_with_jacobian(self, commands, start=None) -> PushJacobian:
         """Poses, forces and their exact derivatives for the commands (K, 3) from
@@ -262,6 +273,17 @@ class PushModel:
             Bad controls; a rollout failed (the first failing one is named).
         """
         return np.array(self._batch(controls, start, processes, "poses"))
+
+    def batch_rollouts_with_forces(self, controls, start=None, processes: int | None = None):
+        """Poses and gripper forces, each (n, T, 3), of n command sequences ``controls``
+        (n, T, 3) from ``start`` (as :meth:`rollout_with_forces`), on the warm workers.
+
+        Raises
+        ------
+        InputError, PlanningError
+        """
+        out = self._batch(controls, start, processes, "forces")
+        return np.array([p for p, _ in out]), np.array([f for _, f in out])
 
     def batch_rollouts_with_jacobian(self, controls, start=None, processes: int | None = None) -> list[PushJacobian]:
         """:meth:`rollout_with_jacobian` of each of n command sequences ``controls``
