@@ -41,7 +41,7 @@ def main() -> None:
     scenario = parse_scenario(table, name="plan_rubber_planning_mesh")
     spec = parse_plan(scenario)
     target = np.array(spec.target[:2])  # from the rest pose after the press
-    out = {"target_m": target, "steps": spec.steps, "max_step_m": spec.max_step, "tolerance_m": spec.tolerance,
+    out = {"target_m": target.tolist(), "steps": spec.steps, "max_step_m": spec.max_step, "tolerance_m": spec.tolerance,
            "load_before": os.getloadavg()}
     t0 = time.perf_counter()
     result = plan(scenario, spec, baseline=False)
