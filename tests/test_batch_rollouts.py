@@ -98,3 +98,18 @@ def test_bad_controls_and_a_closed_pool(push):
     assert all(not w.process.is_alive() for w in pool._workers)
     with pytest.raises(ValueError, match="closed"):
         pool.run("poses", [COMMANDS], push.pressed)
+
+
+def test_a_dead_worker_closes_the_pool_and_the_next_batch_starts_a_new_one(push):
+    import os
+    import signal
+    controls = _controls(3, seed=4)
+    pool = push.pool(2)
+    os.kill(pool._workers[0].process.pid, signal.SIGKILL)
+    pool._workers[0].process.join()
+    with pytest.raises(PlanningError, match="a rollout worker died"):
+        push.batch_rollouts(controls, processes=2)
+    assert pool.closed
+    again = push.batch_rollouts(controls, processes=2)
+    assert push.pool(2) is not pool
+    assert np.abs(again - np.array([push.rollout(c) for c in controls])).max() <= TOL

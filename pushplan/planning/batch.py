@@ -74,7 +74,10 @@ def _serve(conn, push) -> None:
             states.pop(args[0], None)
         else:  # "run"
             kind, key, chunk = args
-            conn.send(_run_chunk(push, kind, states[key], chunk))
+            try:
+                conn.send(_run_chunk(push, kind, states[key], chunk))
+            except (BrokenPipeError, OSError):  # the pool closed while this chunk ran
+                return
 
 
 def _run_chunk(push, kind: str, start, chunk) -> list:
@@ -115,8 +118,8 @@ def _stop(workers) -> None:
         except (OSError, BrokenPipeError):
             pass
     for w in workers:
-        w.process.join(timeout=5)
-        if w.process.is_alive():
+        w.process.join(timeout=1)
+        if w.process.is_alive():  # busy with a chunk nobody will read
             w.process.terminate()
             w.process.join()
 
@@ -174,7 +177,8 @@ class RolloutPool:
         Raises
         ------
         PlanningError
-            A rollout failed (the first failing one is named), or a worker died.
+            A rollout failed (the first failing one is named), or a worker died
+            (the pool is then closed; so it is after an interrupt).
         """
         if self.closed:
             raise ValueError("the rollout pool is closed")
@@ -182,17 +186,21 @@ class RolloutPool:
         size = max(1, math.ceil(len(batch) / (4 * self.processes)))
         chunks = [list(enumerate(batch))[i:i + size] for i in range(0, len(batch), size)][::-1]
         results, busy = {}, {}
-        for w in self._workers:
-            self._send(w, (kind, key), start, chunks, busy)
-        while busy:
-            for conn in wait(list(busy)):
-                w = busy.pop(conn)
-                try:
-                    results.update(conn.recv())
-                except EOFError:
-                    self.close()
-                    raise PlanningError(f"a rollout worker died (exit code {w.process.exitcode})") from None
+        try:
+            for w in self._workers:
                 self._send(w, (kind, key), start, chunks, busy)
+            while busy:
+                for conn in wait(list(busy)):
+                    w = busy.pop(conn)
+                    results.update(conn.recv())
+                    self._send(w, (kind, key), start, chunks, busy)
+        except (EOFError, OSError) as exc:
+            self.close()
+            raise PlanningError(f"a rollout worker died ({type(exc).__name__}); the pool is closed and the "
+                                "next batch starts a new one") from None
+        except BaseException:  # an interrupt: replies still in flight must not answer the next batch
+            self.close()
+            raise
         out = [results[i] for i in range(len(batch))]
         for i, r in enumerate(out):
             if isinstance(r, BaseException):
