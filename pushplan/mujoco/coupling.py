@@ -286,8 +286,9 @@ class CoSimulation:
         if oscillates(self._forces) and "oscillation" not in self.warned:
             self.warned.add("oscillation")
             warn(f"period {self.period}: the gripper force alternates period to period "
-                 f"({', '.join(f'{np.linalg.norm(f):.4g}' for f in self._forces)} N): the coupling is unstable "
-                 "(stiffness=False needs the block's stiffness at the gripper below the arm's; docs/mujoco-coupling.md)")
+                 f"({', '.join(f'{np.linalg.norm(f):.4g}' for f in self._forces)} N): the coupling is unstable ("
+                 + ("check omega * dt" if self._reaction else "without stiffness=True it needs the block's stiffness "
+                    "at the gripper below the arm's") + "; docs/mujoco-coupling.md)")
         if self._reaction is None or self._gbody == 0:
             return
         self._reaction.set(self.gripper_force, self._moment_at_com, centre, self.stiffness)
