@@ -37,6 +37,12 @@ MuJoCo's own ``data.contact`` rows for the block are those of a rigid box held s
 (their forces are not the FE's); the FE contact resultant is in ``userdata``.  Keep
 gripper-block collisions off (``contype``/``conaffinity`` or ``<exclude>``): the FE
 carries that interaction.
+
+With ``stiffness=True`` the reaction on an actuated gripper is not held constant
+through the period but linearised with the block's condensed stiffness at the
+gripper, applied at every ``mj_step`` (:mod:`.stiffness`, which states both modes'
+stability conditions); ``couple()`` warns (:class:`~.stiffness.CouplingWarning`)
+when a condition fails or the gripper force oscillates period to period.
 """
 
 from __future__ import annotations
@@ -46,13 +52,14 @@ import time
 
 import numpy as np
 
-from fe_contact import Command, Model, State, StepReport, initial_state, wrap_angle
+from fe_contact import Command, Model, State, StepReport, initial_state, rollout_derivatives, wrap_angle
 
 from ..errors import InputError
 from ..run.driver import drive
 from .frames import matrix_yaw, rz
 from .mjmodel import find_object, frame_of, mujoco_module
 from .scene import MjcfScene
+from .stiffness import OMEGA_DT_MAX, LinearisedReaction, omega_dt, oscillates, warn
 
 USERDATA_LAYOUT = {
     "gripper_force": slice(0, 3), "contact_force": slice(3, 6), "contact_moment": slice(6, 9),
@@ -91,6 +98,10 @@ class CoSimulation:
         s of MuJoCo time between FE steps for :meth:`update`; :meth:`couple` ignores it.
     fe_model : fe_contact.Model, optional
         Defaults to ``scene.scenario.model()``; its block must have the MJCF size.
+    stiffness : bool
+        Linearise the reaction within each period with the block's condensed stiffness
+        at the gripper (:mod:`.stiffness`; each period's FE step is then differentiated,
+        about 1.3x its cost, and MuJoCo's passive-force callback is taken until :meth:`close`).
 
     Raises
     ------
@@ -101,7 +112,7 @@ class CoSimulation:
     """
 
     def __init__(self, mj_model, mj_data, scene: MjcfScene, gripper: str = "gripper",
-                 control_period: float = 0.05, fe_model: Model | None = None):
+                 control_period: float = 0.05, fe_model: Model | None = None, stiffness: bool = False):
         mj = mujoco_module()
         if not (isinstance(control_period, (int, float)) and math.isfinite(control_period)
                 and control_period >= mj_model.opt.timestep):
@@ -137,6 +148,10 @@ class CoSimulation:
         self.contact_counts = np.zeros(3)  # stick, slip, separated contact nodes
         self.period = 0
         self.converged = 1.0
+        self.stiffness = np.zeros((3, 3))  # N/m, world: d F_g / d gripper translation (stiffness=True)
+        self.warned: set[str] = set()  # "oscillation", "stability": each warned once
+        self._forces: list[np.ndarray] = []
+        self._reaction = LinearisedReaction(self) if stiffness else None
         self._write()
         mj.mj_forward(mj_model, mj_data)
 
@@ -207,8 +222,9 @@ class CoSimulation:
         pos, quat = self.block_pose()
         d = self.mj_data
         d.xfrc_applied[self._bid] = 0.0
-        if self._gbody != 0:  # the world body takes no force
-            d.xfrc_applied[self._gbody] = -np.concatenate([self.gripper_force, self._moment_at_com])
+        if self._gbody != 0:  # the world body takes no force; with stiffness the passive callback applies it
+            d.xfrc_applied[self._gbody] = 0.0 if self._reaction else -np.concatenate([self.gripper_force,
+                                                                                     self._moment_at_com])
         for key, where in USERDATA_LAYOUT.items():
             if where.stop <= self.mj_model.nuserdata:
                 d.userdata[where] = getattr(self, key)
@@ -233,22 +249,61 @@ class CoSimulation:
         mj.mj_kinematics(self.mj_model, self.mj_data)
         centre, yaw = self.drive_pose()
         d = self.scene.to_fe(centre - self._last[0])
-        run = drive(self.model, [Command(d[0], d[1], d[2], wrap_angle(yaw - self._last[1]))], self.state)
-        rep = run.reports[-1]
+        rep, state = self._step(Command(d[0], d[1], d[2], wrap_angle(yaw - self._last[1])))
         self.reports.append(rep)
         self.period += 1
         self.converged = float(rep.converged)
         if rep.converged:  # otherwise the next period retries from the last good state
-            self.state, self._last = run.state, (centre, yaw)
+            self.state, self._last = state, (centre, yaw)
             self.lower_displacement = np.array(rep.lower_centroid, float)
             self.lower_yaw = float(rep.lower_yaw)
             self._measure_forces(rep)
+            self._check(centre)
         self._write()
         mj.mj_forward(self.mj_model, self.mj_data)
         self.step_wall.append(time.perf_counter() - t0)
         return rep
 
     control = couple  # the name before issue 33
+
+    def _step(self, command: Command) -> tuple[StepReport, State | None]:
+        """The period's FE step (with ``stiffness``: differentiated, :attr:`stiffness` set)."""
+        if self._reaction is None:
+            run = drive(self.model, [command], self.state)
+            return run.reports[-1], run.state
+        result = rollout_derivatives(self.model, [command], state=self.state, parameters=())
+        if not result.converged or not result.reports:
+            run = drive(self.model, [command], self.state)  # the failed step's own report
+            return run.reports[-1], None
+        R = rz(self.scene.yaw)  # FE frame -> world
+        self.stiffness = R @ result.d_commands[0, 3:6, 0, :3] @ R.T
+        return result.reports[-1], result.state
+
+    def _check(self, centre: np.ndarray) -> None:
+        """Hand the reaction to the passive callback; warn once on a failed stability
+        condition or an oscillating gripper force (:mod:`.stiffness`)."""
+        self._forces = [*self._forces[-3:], self.gripper_force.copy()]
+        if oscillates(self._forces) and "oscillation" not in self.warned:
+            self.warned.add("oscillation")
+            warn(f"period {self.period}: the gripper force alternates period to period "
+                 f"({', '.join(f'{np.linalg.norm(f):.4g}' for f in self._forces)} N): the coupling is unstable ("
+                 + ("check omega * dt" if self._reaction else "without stiffness=True it needs the block's stiffness "
+                    "at the gripper below the arm's") + "; docs/mujoco-coupling.md)")
+        if self._reaction is None or self._gbody == 0:
+            return
+        self._reaction.set(self.gripper_force, self._moment_at_com, centre, self.stiffness)
+        w = omega_dt(self.mj_model, self.mj_data, self._gbody, self.stiffness)
+        if w >= OMEGA_DT_MAX and "stability" not in self.warned:
+            self.warned.add("stability")
+            warn(f"period {self.period}: the block's stiffness at the gripper gives omega * dt = {w:.3g} >= {OMEGA_DT_MAX:g} with "
+                 f"the MuJoCo timestep {self.mj_model.opt.timestep} s: MuJoCo's explicit step of the reaction is "
+                 "unstable; lower the timestep (docs/mujoco-coupling.md)")
+
+    def close(self) -> None:
+        """Give MuJoCo's passive-force callback back (``stiffness=True``); idempotent."""
+        if self._reaction is not None:
+            self._reaction.close()
+            self._reaction = None
 
 
 def _collides(m, g1: int, g2: int) -> bool:
@@ -276,14 +331,15 @@ def _check_no_collision(m, gbody: int, bgeom: int, gripper: str) -> None:
 
 
 def attach(mj_model, mj_data, scene, gripper: str = "gripper", fe_model: Model | None = None,
-           control_period: float | None = None) -> CoSimulation:
+           control_period: float | None = None, stiffness: bool = False) -> CoSimulation:
     """The FE block coupled into the user's ``mj_model`` / ``mj_data``.
 
     ``scene`` is an :class:`MjcfScene`, or a path to a scenario TOML with a ``[mujoco]``
     table / an MJCF file (:func:`~pushplan.mujoco.scene.open_scene`); it must describe
     the same scene as ``mj_model``.  ``control_period`` (s, for :meth:`CoSimulation.update`)
     defaults to the scenario's ``mujoco.control_period``.  Call ``couple()`` on the
-    result once per control period (module docstring).
+    result once per control period (module docstring).  ``stiffness``: linearise the
+    reaction within the period (:class:`CoSimulation`, :mod:`.stiffness`).
     """
     from .scene import open_scene
 
@@ -291,4 +347,4 @@ def attach(mj_model, mj_data, scene, gripper: str = "gripper", fe_model: Model |
     if not isinstance(scene, MjcfScene):
         scene, settings = open_scene(scene)
     period = control_period if control_period is not None else (settings.control_period if settings else 0.05)
-    return CoSimulation(mj_model, mj_data, scene, gripper, period, fe_model)
+    return CoSimulation(mj_model, mj_data, scene, gripper, period, fe_model, stiffness)

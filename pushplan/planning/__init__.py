@@ -11,6 +11,7 @@ NLP on it, and the correction loop that verifies the plan in the FE model.
 ``result``         :class:`PlanResult`, typed
 ``document``       ``plan.json`` and ``recording.rrd``
 ``push_model``     :class:`PushModel`, the FE model as a planner plugin with exact Jacobians
+``batch``          :class:`RolloutPool`, warm worker processes for batches of rollouts
 
 Imports nothing from ``mujoco``, ``studies`` or ``cli``; the ``[plan]`` table is
 :mod:`pushplan.config.plan`.

@@ -1,6 +1,8 @@
 """The FE push model as a plugin for any planner: steps, rollouts, exact
-Jacobians, batched rollouts on a process pool, and a CasADi function with an
-exact Jacobian for a user's ``Opti`` problem.
+Jacobians, batched rollouts from any FE state on warm worker processes
+(:mod:`pushplan.planning.batch`, kept until :meth:`PushModel.close` or the end
+of a ``with`` block), and a CasADi function with an exact Jacobian for a user's
+``Opti`` problem.
 
 Units, once: SI (m, N, Pa, kg/m^3) and radians in Python; scenario files write
 angles in degrees (``angle_deg``, ``dtheta_deg``) and :meth:`PushModel.from_scenario`
@@ -22,19 +24,19 @@ step (``benchmarks/derivatives.py``); for one scalar objective of many inputs,
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import casadi
 import numpy as np
 
-from fe_contact import PARAMETERS, Model, State, applicable_parameters, rollout_derivatives  # noqa: F401 (PARAMETERS: re-exported)
+from fe_contact import PARAMETERS, Model, RolloutDerivatives, State, applicable_parameters, rollout_derivatives  # noqa: F401 (PARAMETERS: re-exported)
 
 from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..config.plan import press_commands
 from ..config.scenario import Scenario
 from ..errors import InputError
 from ..run import drive
+from .batch import RolloutPool
 from .rollouts import PlanningError
 
 
@@ -85,6 +87,7 @@ class PushModel:
         self.rollouts_run = 0
         self._pressed = None
         self._last = (None, None)
+        self._pool: RolloutPool | None = None
         self._callbacks = []  # CasADi calls back into these: they live as long as the model
 
     @classmethod
@@ -171,21 +174,49 @@ class PushModel:
             raise PlanningError(f"FE step {f.step} failed ({f.status}): {f.message}")
         return run
 
-    def rollout(self, commands) -> np.ndarray:
-        """Lower-face poses (K, 3) after each of the commands (K, 3).
+    def _start(self, start) -> RolloutDerivatives | State:
+        """``start`` checked: None is the press (:attr:`pressed`)."""
+        if start is None:
+            return self.pressed
+        if isinstance(start, RolloutDerivatives) and start.converged or isinstance(start, State):
+            return start
+        raise InputError(f"start must be an fe_contact State or a converged RolloutDerivatives, "
+                         f"got {type(start).__name__}")
+
+    def rollout(self, commands, start=None) -> np.ndarray:
+        """Lower-face poses (K, 3) after each of the commands (K, 3) from ``start``
+        (an :class:`fe_contact.State` of this model, e.g. one :meth:`step` returned;
+        default: the press).
 
         Raises
         ------
         InputError, PlanningError
         """
-        run = self._drive(self.commands(commands), self.pressed.state)
-        self.rollouts_run += 1
-        return np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in run.reports])
+        return self.rollout_with_forces(commands, start)[0]
 
-    def rollout_with_jacobian(self, commands) -> PushJacobian:
-        """Poses, forces and their exact derivatives for the commands (K, 3)
-        (the last result is kept: a CasADi solver asks for the value and the
-        Jacobian at the same point).
+    def rollout_with_forces(self, commands, start=None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rollout`'s poses (K, 3) and the force of the gripper on the block
+        after each command (K, 3), N (world).
+
+        Raises
+        ------
+        InputError, PlanningError
+        """
+        start = self._start(start)
+        state = start.state if isinstance(start, RolloutDerivatives) else start
+        run = self._drive(self.commands(commands), state)
+        self.rollouts_run += 1
+        poses = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in run.reports])
+        return poses, np.array([r.upper_force for r in run.reports])
+
+    def rollout_with_jacobian(self, commands, start=None) -> PushJacobian:
+        """Poses, forces and their exact derivatives for the commands (K, 3) from
+        ``start`` (default: the press; the last result from the press is kept: a
+        CasADi solver asks for the value and the Jacobian at the same point).
+        From the press (or a converged :class:`fe_contact.RolloutDerivatives`) the
+        parameter derivatives include its dependence on the parameters; from a
+        plain :class:`fe_contact.State` it is held fixed and ``d_parameters`` is
+        (K, 3, 0).
 
         Raises
         ------
@@ -193,32 +224,88 @@ class PushModel:
         """
         a = self.commands(commands)
         key = a.tobytes()
-        if self._last[0] == key:
+        if start is None and self._last[0] == key:
             return self._last[1]
-        result = rollout_derivatives(self.model, planar_commands(a), start=self.pressed)
+        start = self._start(start)
+        if isinstance(start, RolloutDerivatives):
+            result = rollout_derivatives(self.model, planar_commands(a), start=start)
+        else:
+            result = rollout_derivatives(self.model, planar_commands(a), state=start, parameters=())
         if not result.converged:
             raise PlanningError(f"FE rollout failed: {result.message}")
         self.rollouts_run += 1
         d_cmd = result.d_commands[:, :, :, PLANAR_COMPONENTS]
         jac = PushJacobian(result.outputs[:, :3], result.outputs[:, 3:6], d_cmd[:, :3], result.d_parameters[:, :3],
                            d_cmd[:, 3:6], result.parameters)
-        self._last = (key, jac)
+        if start is self._pressed:
+            self._last = (key, jac)
         return jac
 
-    def batch_rollouts(self, batch, processes: int = 2) -> np.ndarray:
-        """Poses (B, K, 3) of B command sequences (B, K, 3), on ``processes`` worker processes.
+    def pool(self, processes: int | None = None) -> RolloutPool:
+        """The model's :class:`~pushplan.planning.batch.RolloutPool` of warm workers,
+        started on first use and kept until :meth:`close` (a different
+        ``processes`` restarts it; default: the CPUs this process may use)."""
+        if self._pool is not None and (self._pool.closed or processes not in (None, self._pool.processes)):
+            self._pool.close()
+            self._pool = None
+        if self._pool is None:
+            self.pressed  # computed once here: the workers start from this process's press  # noqa: B018
+            self._pool = RolloutPool(self, processes)
+        return self._pool
+
+    def _batch(self, controls, start, processes, kind: str) -> list:
+        a = np.asarray(controls, dtype=float)
+        if a.ndim != 3 or a.shape[2] != 3 or 0 in a.shape[:2]:
+            raise InputError(f"controls must have shape (n, T, 3) as (dx, dy, dtheta), got {np.shape(controls)}")
+        batch = [self.commands(c) for c in a]
+        out = self.pool(processes).run(kind, batch, self._start(start))
+        self.rollouts_run += len(batch)
+        return out
+
+    def batch_rollouts(self, controls, start=None, processes: int | None = None) -> np.ndarray:
+        """Poses (n, T, 3) of n command sequences ``controls`` (n, T, 3) from
+        ``start`` (as :meth:`rollout`), on the warm workers of :meth:`pool`:
+        the numbers of n :meth:`rollout` calls.
+
+        Raises
+        ------
+        InputError, PlanningError
+            Bad controls; a rollout failed (the first failing one is named).
+        """
+        return np.array(self._batch(controls, start, processes, "poses"))
+
+    def batch_rollouts_with_forces(self, controls, start=None, processes: int | None = None):
+        """Poses and gripper forces, each (n, T, 3), of n command sequences ``controls``
+        (n, T, 3) from ``start`` (as :meth:`rollout_with_forces`), on the warm workers.
 
         Raises
         ------
         InputError, PlanningError
         """
-        batch = [self.commands(c) for c in batch]
-        if processes <= 1 or len(batch) <= 1:
-            return np.array([self.rollout(c) for c in batch])
-        with ProcessPoolExecutor(min(processes, len(batch)), initializer=_init_worker, initargs=(self,)) as pool:
-            out = np.array(list(pool.map(_worker_rollout, batch)))
-        self.rollouts_run += len(batch)
-        return out
+        out = self._batch(controls, start, processes, "forces")
+        return np.array([p for p, _ in out]), np.array([f for _, f in out])
+
+    def batch_rollouts_with_jacobian(self, controls, start=None, processes: int | None = None) -> list[PushJacobian]:
+        """:meth:`rollout_with_jacobian` of each of n command sequences ``controls``
+        (n, T, 3) from ``start``, on the warm workers of :meth:`pool`.
+
+        Raises
+        ------
+        InputError, PlanningError
+        """
+        return self._batch(controls, start, processes, "jacobian")
+
+    def close(self) -> None:
+        """Stop the pool's workers, if any (the model stays usable)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+    def __enter__(self) -> "PushModel":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def casadi_function(self, K: int, name: str = "fe_push") -> casadi.Function:
         """A CasADi function ``u (3K) -> poses (3K)`` (commands and poses flattened
@@ -230,18 +317,6 @@ class PushModel:
         callback = _PosesCallback(name, self, K)
         self._callbacks.append(callback)
         return callback
-
-
-_WORKER: PushModel | None = None
-
-
-def _init_worker(push: PushModel) -> None:
-    global _WORKER
-    _WORKER = push
-
-
-def _worker_rollout(commands) -> np.ndarray:
-    return _WORKER.rollout(commands)
 
 
 class _PosesCallback(casadi.Callback):
