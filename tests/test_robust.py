@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,38 +28,14 @@ QMC_ATOL = 3e-3  # success_probability's quasi-Monte Carlo against the closed fo
 ACCEPT_NOMINAL = 0.60  # issue 42: nominal Monte Carlo success below this ...
 ACCEPT_ROBUST = 0.90  # ... robust at or above this, at the same tolerance
 
-CASE = """
-name = "robust_steel"
-[block]
-size = [0.020, 0.020, 0.010]
-elements = [4, 4, 2]
-quadrature = 2
-[material]
-young = 210.0e9
-poisson = 0.3
-[friction]
-mu_x = 0.5
-mu_y = 0.5
-angle_deg = 0.0
-[[load]]
-dz = -0.1e-3
-[solver]
-local_method = "newton"
-[plan]
-x = 1.0e-3
-y = 1.0e-3
-steps = 5
-max_step = 0.4e-3
-tolerance = 3.0e-6
-planning_elements = [2, 2, 1]
-planning_quadrature = 2
-"""
-ROBUST = "robust = {level = 0.9, max_iterations = 12, monte_carlo = 50}\n"
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+CASE = (SCENARIOS / "plan_robust.toml").read_text()
+ROBUST = "robust = {level = 0.9, max_iterations = 12, monte_carlo = 50, seed = 0}\n"
+assert ROBUST in CASE
+CASE = CASE.replace(ROBUST, "")
 # the kind of distribution identification reports (issue 42: mu_x +- 0.003, mu_y +- 0.014, angle +- 0.6 deg):
 # mu_y, across the push, much less certain than mu_x
-IDENTIFIED = {"parameters": {"mu_x": {"estimate": 0.3, "sigma": 0.002}, "mu_y": {"estimate": 0.15, "sigma": 0.02},
-                             "angle_deg": {"estimate": 0.0, "sigma": 1.0}},
-              "correlation": [[1.0, 0.1, 0.0], [0.1, 1.0, 0.0], [0.0, 0.0, 1.0]]}
+IDENTIFIED = json.loads((SCENARIOS / "plan_robust_identified.json").read_text())
 
 
 def write(tmp_path, robust=ROBUST, identified=IDENTIFIED):

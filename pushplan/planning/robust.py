@@ -9,9 +9,10 @@ Method (docs/planning.md, "Robust plans"):
    (:mod:`.distribution`), each an FE model on the verification mesh, pressed once.
    At commands ``u`` (m, 3) each gives the final pose ``p_i(u)`` (loaded or at rest) and
    its command Jacobian ``J_i = dp_i/du``: exact for a loaded target with a bonded pad
-   (:func:`fe_contact.rollout_derivatives`), else the rigid-follow approximation
-   ``dp/du_k = I`` (the final pose moves with the total command; no release or pad
-   derivatives yet).
+   (:func:`fe_contact.rollout_derivatives`), else (no release or pad derivatives yet)
+   the rigid-follow approximation ``dp/du_k = I`` (the final pose moves with the total
+   command) at the nominal commands, then Broyden's rank-one update from each
+   evaluation to the next (:func:`broyden`).
 3. The robust objective is the expected weighted squared miss plus the NLP's effort
 
        Phi(u) = sum_i w_i |W^(1/2) (p_i(u) - x*)|^2 + u^T E u
@@ -168,6 +169,7 @@ def _weights(spec: PlanSpec, m: int) -> tuple[list, np.ndarray, np.ndarray]:
 
 
 def _misses(finals: np.ndarray, spec: PlanSpec) -> np.ndarray:
+    """Final poses (S, 3) minus the target, yaw wrapped."""
     r = finals - np.asarray(spec.target, float)
     r[:, 2] = wrap_angle(r[:, 2])
     return r
@@ -202,12 +204,30 @@ def lm_step(ev: Evaluation, weights: np.ndarray, spec: PlanSpec, lam: float) -> 
     return out
 
 
+def broyden(previous: Evaluation, ev: Evaluation) -> Evaluation:
+    """``ev`` with each sigma point's Jacobian Broyden-updated from ``previous``'s:
+    ``J += (dp - J du) du^T / |du|^2`` (du the change of the commands, flattened;
+    ``dp`` of the final pose), so that ``J du = dp`` (Broyden 1965, the "good" update)."""
+    du = (ev.commands - previous.commands).ravel()
+    nn = float(du @ du)
+    if nn == 0.0:
+        return dataclasses.replace(ev, jacobians=previous.jacobians)
+    S, m = len(ev.finals), len(ev.commands)
+    J = previous.jacobians.reshape(S, 3, 3 * m)
+    dp = ev.finals - previous.finals
+    dp[:, 2] = wrap_angle(dp[:, 2])
+    J = J + np.einsum("si,j->sij", dp - J @ du, du) / nn
+    return dataclasses.replace(ev, jacobians=J.reshape(S, 3, m, 3))
+
+
 def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None) -> list[Evaluation]:
     """Step 3-4 of the module docstring from ``commands``: every evaluation, in order."""
     level, evals = spec.robust.level, []
     current, lam = None, LAMBDA0
     for it in range(spec.robust.max_iterations):
         ev = sigma.evaluate(commands)
+        if not sigma.exact and current is not None:
+            ev = broyden(evals[-1], ev)
         evals.append(ev)
         accepted = current is None or ev.objective < current.objective
         if log is not None:
@@ -219,6 +239,8 @@ def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None)
                 break
         else:
             lam *= LAMBDA_GROWTH
+            if not sigma.exact:  # the secant information of the refused step too
+                current = dataclasses.replace(current, jacobians=ev.jacobians)
         commands = lm_step(current, sigma.weights, spec, lam)
     return evals
 
