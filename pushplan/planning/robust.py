@@ -52,10 +52,15 @@ from fe_contact.stepping.pose import wrap_angle
 from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
 from .distribution import Distribution, binomial_interval, pose_moments, success_probability
+from .reduced_model import PushParameters, steady_lag
 from .result import PlanResult
 from .rollouts import FeRollouts, Rollout
 from .target import pose_error, within_tolerance
 
+SLIDE_STEPS = 2
+"""Commands of :func:`slide_start`'s final slide: a lag turned far needs more than one step's slip."""
+DIRECTIONS = 72
+"""Slip directions (every 5 degrees) :func:`quiet_direction` compares."""
 LAMBDA0 = 1e-2
 """The first Levenberg-Marquardt damping, relative to the diagonal of the Gauss-Newton matrix
 (Marquardt's scaling): the linearisation holds over a fraction of a step only where a
@@ -220,24 +225,82 @@ def broyden(previous: Evaluation, ev: Evaluation) -> Evaluation:
     return dataclasses.replace(ev, jacobians=J.reshape(S, 3, m, 3))
 
 
-def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None) -> list[Evaluation]:
-    """Step 3-4 of the module docstring from ``commands``: every evaluation, in order."""
+def quiet_direction(params: PushParameters, distribution: Distribution, toward) -> np.ndarray:
+    """The unit slip direction (2,) whose steady-sliding lag (:func:`~.reduced_model.steady_lag`)
+    varies least over the sigma points, among :data:`DIRECTIONS` directions within 90 degrees of ``toward``."""
+    points, weights = distribution.sigma_points()
+    models = [dataclasses.replace(params, **{("angle" if k == "angle_deg" else k): (math.radians(v) if k == "angle_deg"
+                                                                                     else float(v))
+                                             for k, v in zip(distribution.names, theta, strict=True) if k != "young"})
+              for theta in points]
+    best, spread_min = None, math.inf
+    for phi in 2 * math.pi * np.arange(DIRECTIONS) / DIRECTIONS:
+        d = np.array([math.cos(phi), math.sin(phi)])
+        if d @ toward < 0:
+            continue
+        lags = np.array([steady_lag(m, d) for m in models])
+        spread = float(weights @ np.sum((lags - weights @ lags) ** 2, axis=1))
+        if spread < spread_min:
+            best, spread_min = d, spread
+    return best
+
+
+def slide_start(nominal: PlanResult, distribution: Distribution, spec: PlanSpec) -> np.ndarray | None:
+    """A second start of the refinement (step 3): commands whose last (up to :data:`SLIDE_STEPS`,
+    as many as leave the others within the bounds) slide ``max_step`` each along :func:`quiet_direction`, the others straight and equal towards the target plus the
+    lag that slide leaves (less its spring-back for a rest target), within the step bounds;
+    None with a yaw target or a single step."""
+    K = spec.steps
+    target = np.asarray(spec.target[:2], float)
+    if spec.yaw_targeted or K < 2 or not np.any(target):
+        return None
+    d = quiet_direction(nominal.params, distribution, target)
+    lag = steady_lag(nominal.params, d)
+    if spec.target_state == "rest":
+        lag = (1.0 - nominal.springback.position) * lag
+    last = spec.max_step * d
+    for n in range(min(SLIDE_STEPS, K - 1), 0, -1):  # the longest slide the others' bounds allow
+        step = (target + lag - n * last) / (K - n)
+        if np.hypot(*step) <= spec.max_step:
+            break
+    step *= min(1.0, spec.max_step / max(float(np.hypot(*step)), 1e-300))
+    out = np.zeros((K, 3))
+    out[:K - n, :2], out[K - n:, :2] = step, last
+    return out
+
+
+def spread(ev: Evaluation, spec: PlanSpec) -> float:
+    """``tr(W S_p)``: the part of ``Phi`` the final poses' spread makes, whatever their mean."""
+    cols, w, _ = _weights(spec, len(ev.commands))
+    return float(np.sum(w**2 * np.diag(ev.covariance)[cols]))
+
+
+def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None,
+           alternative: np.ndarray | None = None) -> list[Evaluation]:
+    """Step 3-4 of the module docstring from ``commands``: every evaluation, in order.
+    ``alternative``: commands evaluated second, where the first do not reach the level; the
+    steps start from the one of the smaller spread (:func:`spread`)."""
     level, evals = spec.robust.level, []
     current, lam = None, LAMBDA0
     for it in range(spec.robust.max_iterations):
+        if it == 1 and alternative is not None:
+            commands = alternative
         ev = sigma.evaluate(commands)
         if not sigma.exact and current is not None:
             ev = broyden(evals[-1], ev)
         evals.append(ev)
         accepted = current is None or ev.objective < current.objective
+        if it == 1 and alternative is not None:  # the start of the smaller spread: the steps centre it
+            accepted = spread(ev, spec) < spread(current, spec)
         if log is not None:
-            log(f"      robust evaluation {it + 1}: predicted probability {ev.probability:.4f}, objective "
-                f"{ev.objective:.5g}{'' if accepted else ' (step refused)'}")
+            log(f"      robust evaluation {it + 1}{' (second start)' if it == 1 and alternative is not None else ''}: "
+                f"predicted probability {ev.probability:.4f}, objective {ev.objective:.5g}"
+                f"{'' if accepted else ' (step refused)'}")
         if accepted:
             current, lam = ev, lam / (LAMBDA_SHRINK if current is not None else 1.0)
             if ev.probability >= level:
                 break
-        else:
+        elif not (it == 1 and alternative is not None):  # a worse second start is no refused step
             lam *= LAMBDA_GROWTH
             if not sigma.exact:  # the secant information of the refused step too
                 current = dataclasses.replace(current, jacobians=ev.jacobians)
@@ -273,7 +336,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
     """
     t0 = time.perf_counter()
     sigma = SigmaRollouts(scenario, distribution, spec)
-    evals = refine(sigma, nominal.commands, spec, log)
+    evals = refine(sigma, nominal.commands, spec, log, alternative=slide_start(nominal, distribution, spec))
     t1 = time.perf_counter()
     best = max(range(len(evals)), key=lambda i: (evals[i].probability, -evals[i].objective))
     ev, level = evals[best], spec.robust.level
