@@ -38,14 +38,14 @@ CASE = CASE.replace(ROBUST, "")
 IDENTIFIED = json.loads((SCENARIOS / "plan_robust_identified.json").read_text())
 
 
-def write(tmp_path, robust=ROBUST, identified=IDENTIFIED):
-    (tmp_path / "case.toml").write_text(CASE + robust)
+def write(tmp_path, robust=ROBUST, identified=IDENTIFIED, case=CASE):
+    (tmp_path / "case.toml").write_text(case + robust)
     (tmp_path / "identified.json").write_text(json.dumps(identified))
     return str(tmp_path / "case.toml"), str(tmp_path / "identified.json")
 
 
-def run_plan(tmp_path, robust=ROBUST, identified=IDENTIFIED):
-    case, ident = write(tmp_path, robust, identified)
+def run_plan(tmp_path, robust=ROBUST, identified=IDENTIFIED, case=CASE):
+    case, ident = write(tmp_path, robust, identified, case)
     out = tmp_path / "out"
     rc = main(["plan", case, "--identified", ident, "--out", str(out), "--quiet", "--no-recording"])
     return rc, json.loads((out / "plan.json").read_text())
@@ -162,3 +162,17 @@ def test_robust_plan_holds_where_the_nominal_does_not(tmp_path):
         assert lo <= predicted <= hi, (name, predicted, lo, hi)
     # the plan.json commands are the robust ones, the nominal ones beside them
     assert doc["planned_commands"] != r["nominal"]["commands"]
+
+
+def test_rest_target_with_a_bonded_lift_holds_for_every_friction(tmp_path):
+    """A bonded pad lifted off leaves the lower face under the upper face whatever the friction:
+    the rest target's spread is nil, the nominal plan already holds, and the robust plan (sigma-point
+    rollouts with the release, no exact Jacobian) says so after one evaluation and keeps it."""
+    rest = CASE.replace("[plan]\n", '[release]\nmode = "lift"\nsteps = 4\n\n[plan]\ntarget_state = "rest"\n')
+    rc, doc = run_plan(tmp_path, "robust = {monte_carlo = 2}\n", case=rest)
+    r = doc["robust"]
+    assert rc == 0 and r["reached"] and not r["exact_jacobians"] and doc["plan"]["target_state"] == "rest"
+    assert r["predicted_probability"] == r["nominal_predicted_probability"] == 1.0 and len(r["evaluations"]) == 1
+    assert doc["planned_commands"] == r["nominal"]["commands"]
+    assert r["monte_carlo"]["robust"]["within_tolerance"] == r["monte_carlo"]["nominal"]["within_tolerance"] == 2
+    assert r["evaluations"][0]["sd_final"][0] < 0.01 * doc["plan"]["tolerance"]
