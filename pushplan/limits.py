@@ -27,6 +27,10 @@ MAX_PLAN_STEPS = 500
 """``[plan] steps``: commands of a plan (the NLP grows with them)."""
 MAX_ROLLOUTS = 100
 """``[plan] max_rollouts`` (default 6): FE rollouts of the planner's outer loop."""
+MAX_ROBUST_ITERATIONS = 100
+"""``[plan] robust.max_iterations`` (default 8): sigma-point evaluations of the robust refinement."""
+MAX_MONTE_CARLO = 100_000
+"""``[plan] robust.monte_carlo`` (default 50): truths of the robust plan's Monte Carlo check."""
 MAX_SUGGEST = 36
 """``identify --suggest N``: one push per 10 degrees."""
 MAX_LEVELS = 8

@@ -1,7 +1,13 @@
 """``pushplan plan SCENARIO --out DIR``: plan the ``[plan]`` table's commands, write
 ``plan.json`` (and ``recording.rrd``), print the final errors.
 
-Exit status 3 for a plan not within tolerance (the best verified plan is written) and,
+With ``--identified identified.json`` the plan is robust (:mod:`pushplan.planning.robust`):
+planned for the identified estimate, then refined to reach ``[plan] robust.level``, the
+probability of the final pose within tolerance over the identified distribution, and
+checked by a Monte Carlo of FE rollouts (``plan.json``: ``robust``).
+
+Exit status 3 for a plan not within tolerance (the best verified plan is written), a robust
+plan below its level (the commands of the highest probability found are written) and,
 through :func:`pushplan.cli.main`, for a failed FE rollout (``PlanningError``); 2 for
 bad input (nothing written).
 """
@@ -68,56 +74,24 @@ def _world_poses(doc: dict, spec) -> dict:
             "naive_final": None if doc["naive"] is None else row(doc["naive"]["verified_poses"][-1])}
 
 
-def cmd_plan(args) -> int:
-    from ..config import load_scenario
-    from ..config.plan import parse_plan
-    from ..config.budget import check_memory
-    from ..outputs import atomic_write_json
-    from ..outputs.recording_process import RecordingProcess
-    from ..outputs.transaction import output_transaction
-    from ..planning import plan, plan_document
-    from ..planning.document import recording_job
+def _print_robust(r: dict) -> None:
+    """The robust plan's promise and its check, beside the nominal plan's."""
+    mc = r["monte_carlo"]
+    for name, predicted in (("robust", r["predicted_probability"]), ("nominal", r["nominal_predicted_probability"])):
+        check = mc.get(name)
+        seen = ("" if not check or not check["count"] else
+                f"; Monte Carlo {check['within_tolerance']}/{check['count']} = {check['fraction']:.3f} within tolerance "
+                f"(95 % interval [{check['interval_95'][0]:.3f}, {check['interval_95'][1]:.3f}])")
+        print(f"  {name:>7} plan: predicted probability within tolerance {predicted:.4f}{seen}")
+    n = r["fe_rollouts"]
+    print(f"  robust: {n['sigma_points']} sigma points, {n['sigma_point_rollouts']} sigma-point FE rollouts, "
+          f"{n['monte_carlo_rollouts']} Monte Carlo FE rollouts (level {r['level']:g}: "
+          f"{'reached' if r['reached'] else 'not reached'})")
 
-    scenario, origin = load_scenario(args.scenario), None
-    table = scenario.extra.get("plan")
-    if isinstance(table, dict) and table.get("frame") == "world":
-        scenario, origin = _world_frame(args.scenario)
-    spec = parse_plan(scenario, world_origin=origin)
-    start = None
-    if args.from_observations:
-        from ..config.observations import read_observations
-        from ..planning.replan import measured_start, remaining_spec
 
-        start = measured_start(scenario, spec, read_observations(args.from_observations))
-        full_spec, spec = spec, remaining_spec(spec, start)
-    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
-    check_memory(spec.planning_elements, spec.planning_quadrature, override=args.no_memory_check,
-                 what="plan.planning_elements")
-    tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
-
-    def log(text):
-        if not args.quiet:
-            print(text, file=sys.stderr, flush=True)
-
-    # the recording's writer imports rerun on the other core while this process plans
-    writer = RecordingProcess() if not args.no_recording else nullcontext()
-    with writer, tx:
-        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
-                      refinement=args.refinement)
-        doc = plan_document(result)
-        if spec.world_origin is not None:
-            doc["world"] = _world_poses(doc, spec)
-        if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
-            doc["from"] = {"observations": args.from_observations, **start.to_dict(),
-                           "full_plan": full_spec.to_dict()}
-        if args.verification_error:
-            doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
-        atomic_write_json(tx.path / "plan.json", doc)
-        wrote = [tx.out / "plan.json"]
-        if not args.no_recording:
-            fn, job = recording_job(result, tx.path / "recording.rrd", scenario.mesh())
-            writer.run(fn, *job)
-            wrote.append(tx.out / "recording.rrd")
+def _print_summary(scenario, spec, result, doc: dict, wrote, args) -> None:
+    """The plan's status, final errors (planned and naive, loaded and at rest), the robust
+    check and what was written, on stdout."""
     print(f"{scenario.name}: {result.status} ({result.message})")
     state = spec.target_state
     print(f"  target: the lower-face pose {'at rest after the release' if state == 'rest' else 'under load'}")
@@ -140,7 +114,80 @@ def cmd_plan(args) -> int:
               f"{[lv['elements'] for lv in ve['levels']]}): position {gci}")
     print(f"  FE rollouts: planning {result.rollouts['planning']}, verification {result.rollouts['verification']} "
           f"(refinement: {result.refinement}); plan time {result.timings['total']:.2f} s")
+    if "robust" in doc:
+        _print_robust(doc["robust"])
     print("  wrote " + ", ".join(str(p) for p in wrote))
+
+
+def cmd_plan(args) -> int:
+    from ..config import load_scenario
+    from ..config.plan import parse_plan
+    from ..config.budget import check_memory
+    from ..errors import InputError
+    from ..outputs import atomic_write_json
+    from ..outputs.recording_process import RecordingProcess
+    from ..outputs.transaction import output_transaction
+    from ..planning import plan, plan_document
+    from ..planning.document import recording_job
+
+    scenario, origin = load_scenario(args.scenario), None
+    table = scenario.extra.get("plan")
+    if isinstance(table, dict) and table.get("frame") == "world":
+        scenario, origin = _world_frame(args.scenario)
+    distribution = None
+    if args.identified:
+        from ..identify.document import read_identified
+
+        if args.from_observations:
+            raise InputError("--identified: a robust plan re-planned --from observations is not supported; "
+                             "give one of them")
+        distribution = read_identified(args.identified)
+        scenario = distribution.scenario(scenario, distribution.mean)  # the nominal plan is for the estimate
+    spec = parse_plan(scenario, world_origin=origin)
+    start = None
+    if args.from_observations:
+        from ..config.observations import read_observations
+        from ..planning.replan import measured_start, remaining_spec
+
+        start = measured_start(scenario, spec, read_observations(args.from_observations))
+        full_spec, spec = spec, remaining_spec(spec, start)
+    check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
+    check_memory(spec.planning_elements, spec.planning_quadrature, override=args.no_memory_check,
+                 what="plan.planning_elements")
+    tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
+
+    def log(text):
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    # the recording's writer imports rerun on the other core while this process plans
+    writer = RecordingProcess() if not args.no_recording else nullcontext()
+    with writer, tx:
+        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
+                      refinement=args.refinement)
+        robust = None
+        if distribution is not None:
+            from ..planning.robust import plan_robust, robust_document
+
+            robust = plan_robust(scenario, distribution, spec, result, log=log)
+            result = robust.result
+        doc = plan_document(result)
+        if robust is not None:
+            doc["robust"] = robust_document(robust, spec)
+        if spec.world_origin is not None:
+            doc["world"] = _world_poses(doc, spec)
+        if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
+            doc["from"] = {"observations": args.from_observations, **start.to_dict(),
+                           "full_plan": full_spec.to_dict()}
+        if args.verification_error:
+            doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
+        atomic_write_json(tx.path / "plan.json", doc)
+        wrote = [tx.out / "plan.json"]
+        if not args.no_recording:
+            fn, job = recording_job(result, tx.path / "recording.rrd", scenario.mesh())
+            writer.run(fn, *job)
+            wrote.append(tx.out / "recording.rrd")
+    _print_summary(scenario, spec, result, doc, wrote, args)
     if result.status in ("infeasible", "not_converged"):
         print(f"pushplan: {result.message}", file=sys.stderr)
     return EXIT_SOLVER_FAILURE if result.status == "not_converged" else 0
@@ -169,6 +216,10 @@ def register(subparsers) -> None:
                    help="FE correction of the plan: modifier adaptation, or Gauss-Newton steps with the exact "
                    "gradient (modifier adaptation where a release or a frictional pad has no derivatives); "
                    f"default {DEFAULT_REFINEMENT}")
+    p.add_argument("--identified", metavar="IDENTIFIED_JSON",
+                   help="plan robustly over the parameter distribution of this identified.json (pushplan identify): "
+                   "the estimate replaces the scenario's values, [plan] robust sets the level and the Monte Carlo "
+                   "check (docs/planning.md)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_memory_flag(p)
     p.set_defaults(func=cmd_plan)

@@ -20,6 +20,8 @@ applied before the planned commands; the ``[plan]`` table reads (SI units)::
     target_state = "rest"      # "loaded": the lower face while the gripper still holds it after the
                                # last command; "rest": where it comes to rest after the scenario's
                                # [release] (default when there is one; needs one)
+    robust = {level = 0.95, max_iterations = 8, monte_carlo = 50, seed = 0}
+                               # settings of the robust plan (pushplan plan --identified, docs/planning.md)
 
 With ``frame = "world"`` (a scenario with a ``[mujoco]`` table) ``x``, ``y`` are the
 world position (m) of the lower-face centre and ``yaw_deg`` the block's world yaw;
@@ -39,16 +41,17 @@ from dataclasses import dataclass
 from fe_contact import Command, wrap_angle
 
 from ..errors import InputError
-from ..limits import (MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_LENGTH, MAX_PLAN_STEPS, MAX_ROLLOUTS, MIN_PLAN_STEP,
-                      MIN_TOLERANCE_LENGTH)
+from ..limits import (MAX_COUNT, MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_LENGTH, MAX_MONTE_CARLO, MAX_PLAN_STEPS,
+                      MAX_ROBUST_ITERATIONS, MAX_ROLLOUTS, MIN_PLAN_STEP, MIN_TOLERANCE_LENGTH)
 from .commands import degrees_exact
 from .scenario import Scenario
 from .validate import Table, count
 
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
-    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame", "target_state",
+    "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame", "target_state", "robust",
 })
+ROBUST_KEYS = frozenset({"level", "max_iterations", "monte_carlo", "seed"})
 FRAMES = ("block", "world")
 TARGET_STATES = ("loaded", "rest")
 REQUIRED_KEYS = frozenset({"x", "y", "steps", "max_step"})
@@ -59,6 +62,49 @@ DEFAULT_EFFORT_WEIGHT = 1e-3
 DEFAULT_PLANNING_ELEMENTS = (6, 6, 2)
 DEFAULT_PLANNING_QUADRATURE = 2
 DEFAULT_MAX_ROLLOUTS = 6
+DEFAULT_ROBUST_LEVEL = 0.95
+DEFAULT_ROBUST_ITERATIONS = 8
+DEFAULT_MONTE_CARLO = 50
+
+
+@dataclass(frozen=True)
+class RobustSpec:
+    """``[plan] robust``: the robust plan's settings (:mod:`pushplan.planning.robust`).
+
+    ``level`` the probability (0, 1) of the final pose within tolerance over the identified
+    distribution that the plan must reach; ``max_iterations`` the sigma-point evaluations
+    of its refinement (each ``2 n + 1`` FE rollouts on the verification mesh, n identified
+    parameters); ``monte_carlo`` the truths drawn for the check (0: none) and ``seed``
+    their random seed.
+    """
+
+    level: float = DEFAULT_ROBUST_LEVEL
+    max_iterations: int = DEFAULT_ROBUST_ITERATIONS
+    monte_carlo: int = DEFAULT_MONTE_CARLO
+    seed: int = 0
+
+    def to_dict(self) -> dict:
+        return {"level": self.level, "max_iterations": self.max_iterations, "monte_carlo": self.monte_carlo,
+                "seed": self.seed}
+
+
+def parse_robust(t: Table) -> RobustSpec:
+    """``[plan] robust`` (an inline table; absent: the defaults).
+
+    Raises
+    ------
+    InputError
+        Unknown key or bad value, named.
+    """
+    r = t.table("robust", ROBUST_KEYS, default={})
+    level = r.number("level", DEFAULT_ROBUST_LEVEL, positive=True)
+    if not level < 1.0:
+        raise InputError(f"plan.robust.level must be a probability in (0, 1), got {r.data['level']!r}")
+    return RobustSpec(level=level,
+                      max_iterations=r.integer("max_iterations", DEFAULT_ROBUST_ITERATIONS, minimum=1,
+                                               maximum=MAX_ROBUST_ITERATIONS),
+                      monte_carlo=r.integer("monte_carlo", DEFAULT_MONTE_CARLO, minimum=0, maximum=MAX_MONTE_CARLO),
+                      seed=r.integer("seed", 0, minimum=0, maximum=MAX_COUNT))
 
 
 @dataclass(frozen=True)
@@ -85,6 +131,8 @@ class PlanSpec:
     """With ``frame = "world"``: the table's world ``(x, y, yaw)`` (m, rad)."""
     world_origin: tuple[float, float, float] | None = None
     """With ``frame = "world"``: the block's rest pose ``(x, y, yaw)`` in the world."""
+    robust: RobustSpec = RobustSpec()
+    """``robust``: the settings of a robust plan (used with ``pushplan plan --identified``)."""
 
     @property
     def travel(self) -> float:
@@ -109,7 +157,8 @@ class PlanSpec:
             "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
             "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
             "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-            "travel": self.travel, "target_state": self.target_state, "frame": "block" if self.world_origin is None else "world",
+            "travel": self.travel, "target_state": self.target_state, "robust": self.robust.to_dict(),
+            "frame": "block" if self.world_origin is None else "world",
             **({} if self.world_origin is None else {"world": {
                 "x": self.world_target[0], "y": self.world_target[1],
                 "yaw_deg": math.degrees(self.world_target[2]) if self.yaw_targeted else None,
@@ -123,7 +172,7 @@ class PlanSpec:
                  "tolerance": self.tolerance, "yaw_tolerance_deg": degrees_exact(self.yaw_tolerance),
                  "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
                  "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-                 "target_state": self.target_state}
+                 "target_state": self.target_state, "robust": self.robust.to_dict()}
         if self.yaw_targeted:
             table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
         if self.world_target is not None:
@@ -258,5 +307,5 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         planning_elements=_planning_elements(t),
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=2, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1, maximum=MAX_ROLLOUTS),
-        world_target=world_target, world_origin=world_origin, target_state=target_state,
+        world_target=world_target, world_origin=world_origin, target_state=target_state, robust=parse_robust(t),
     )

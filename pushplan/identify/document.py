@@ -9,6 +9,8 @@ import numpy as np
 
 from ..config.observations import Observations
 from ..config.scenario import Scenario
+from ..errors import InputError
+from ..planning.distribution import Distribution
 from .fit import Identification
 from .forward import as_files
 from .noise import NoiseModel
@@ -118,3 +120,48 @@ def covariance_from_document(doc: dict) -> tuple[tuple[str, ...], np.ndarray, np
                                                                             np.where(finite, sd, 0.0)), 0.0)
     C[~finite, ~finite] = np.inf
     return names, estimate, C
+
+
+def read_identified(path) -> Distribution:
+    """The parameter distribution of an ``identified.json`` file (:func:`covariance_from_document`),
+    for a robust plan (:mod:`pushplan.planning.robust`).
+
+    Raises
+    ------
+    InputError
+        Unreadable file, not an ``identify`` document, an undetermined parameter (sigma
+        null) or a covariance that is not positive semi-definite; one line naming the entry.
+    """
+    import json
+
+    from .forward import PARAMETERS
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"--identified: cannot read {path}: {e}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict) or not doc["parameters"] \
+            or not isinstance(doc.get("correlation"), list):
+        raise InputError(f"--identified: {path} is not an identified.json (no parameters / correlation)")
+    for k, entry in doc["parameters"].items():
+        if k not in PARAMETERS:
+            raise InputError(f"--identified: {path}: parameters.{k} is not an identifiable parameter "
+                             f"({', '.join(PARAMETERS)})")
+        if not isinstance(entry, dict) or not isinstance(entry.get("estimate"), (int, float)) \
+                or not math.isfinite(entry["estimate"]):
+            raise InputError(f"--identified: {path}: parameters.{k}.estimate must be a finite number")
+        if entry.get("sigma") is None:
+            raise InputError(f"--identified: {path}: parameters.{k}.sigma is null (undetermined); a robust plan "
+                             "needs every parameter's uncertainty (fix it at a value: identify --fit without it)")
+    p = len(doc["parameters"])
+    if len(doc["correlation"]) != p or any(not isinstance(r, list) or len(r) != p for r in doc["correlation"]):
+        raise InputError(f"--identified: {path}: correlation must be {p} x {p}")
+    try:
+        names, estimate, C = covariance_from_document(doc)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"--identified: {path}: bad sigma or correlation entry ({e})") from None
+    scale = max(float(np.max(np.abs(np.diag(C)))), 1e-300)
+    if not np.isfinite(C).all() or np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -1e-9 * scale:
+        raise InputError(f"--identified: {path}: the covariance (correlation x sigmas) is not positive semi-definite")
+    return Distribution(names, estimate, C)
