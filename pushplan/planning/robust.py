@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact.stepping.pose import wrap_angle
+from fe_contact import wrap_angle
 
 from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
