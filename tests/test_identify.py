@@ -391,8 +391,8 @@ def test_a_design_without_information_falls_back_to_steady_sliding(monkeypatch):
     monkeypatch.setattr(design, "_checked", lambda sc, obs, noise, fit, directions, *a: directions)
     cmds = (Command(dz=-1e-4), Command(dx=1e-4), Command(dx=1e-4))
     obs = Observations(cmds, {"lower_x": np.array([0.0, 5e-5, 1.5e-4]), "lower_y": np.zeros(3),
-                              "force_x": np.array([0.0, -30.0, -30.0]), "force_y": np.zeros(3),
-                              "force_z": np.array([100.0, 100.0, 100.0])})
+                              "force_x": np.array([0.0, 30.0, 30.0]), "force_y": np.zeros(3),
+                              "force_z": np.array([-100.0, -100.0, -100.0])})  # forces on the block
     sc = type("S", (), {"mu_x": 0.3, "mu_y": 0.15, "angle_deg": 20.0})()
     assert design.calibrated_spring(obs) is not None
     assert len(design.suggest(sc, obs, NoiseModel(), 2)) == 2

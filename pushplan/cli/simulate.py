@@ -116,7 +116,7 @@ def register(subparsers) -> None:
     p.add_argument("--commands", help="plan.json whose upper-face commands replace the scenario's [[load]]")
     p.add_argument("--observations", metavar="FILE",
                    help="also write the run as an observation file (.csv or .json: commands, lower-face pose, "
-                   "force on the gripper; see pushplan.config.observations)")
+                   "the force the gripper applies on the block, what a wrist sensor reads; see docs/conventions.md)")
     p.add_argument("--force", action="store_true",
                    help="run the --commands of a plan made for another scenario (block, material, friction, [plan])")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")

@@ -76,9 +76,9 @@ def calibrated_spring(obs: Observations):
         return None
     upper = np.cumsum([[c.dx, c.dy] for c in obs.commands], axis=0)
     lag = upper - np.stack([obs.values["lower_x"], obs.values["lower_y"]], axis=1)
-    g = -np.stack([obs.values["force_x"], obs.values["force_y"]], axis=1)
+    g = np.stack([obs.values["force_x"], obs.values["force_y"]], axis=1)  # the drive force on the block
     gg = float((g * g).sum())
-    normal = float(np.max(obs.values["force_z"]))  # the pressed rows' (a last row after a release has none)
+    normal = float(np.max(-obs.values["force_z"]))  # the pressed rows' (a last row after a release has none)
     compliance = float((lag * g).sum()) / gg if gg > 0 else 0.0
     if compliance <= 0 or normal <= 0:
         return None  # not a spring: the steady-sliding information stands in
@@ -176,7 +176,7 @@ def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fi
     if spring is not None:  # None too when the calibrated spring never slides over these pushes
         directions = greedy_directions(theta, n, lambda ds: sequence_information(theta, ds, distance, spring, noise))
     if directions is None:
-        normal = max(float(np.max(obs.values["force_z"])), 1e-300) if "force_z" in obs.values else 1.0
+        normal = max(float(np.max(-obs.values["force_z"])), 1e-300) if "force_z" in obs.values else 1.0
         directions = greedy_directions(theta, n, lambda ds: steady_information(theta, ds, normal, noise))
     if directions is None:
         raise InputError(f"--suggest: the friction estimate ({theta[0]:g}, {theta[1]:g}, {theta[2]:g} deg) gives "
