@@ -34,7 +34,7 @@ This package knows nothing about planning, robots, MuJoCo or rerun.
 """
 
 from .fem.elasticity import Material
-from .contact.friction import local_frame, project_elliptic_cone
+from .contact.friction import MU_MAX, local_frame, project_elliptic_cone
 from .fem.loads import GRAVITY, Gripper
 from .contact.local_solver import solve_local
 from .fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
@@ -88,6 +88,7 @@ __all__ = [
     "Friction",
     "GRAVITY",
     "Gripper",
+    "MU_MAX",
     "initial_state",
     "IterLog",
     "LAWS",

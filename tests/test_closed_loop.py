@@ -249,6 +249,9 @@ def test_the_warm_closed_loop_ends_as_the_cold_one(tmp_path):
     assert np.hypot(*(a - b)) <= TOLERANCE
     assert [it["plan_status"] for it in warm["iterations"]] == [it["plan_status"] for it in cold["iterations"]]
     for d in (warm, cold):
+        for it in d["iterations"]:  # issue 43: each re-plan says why it has its status
+            assert it["plan_message"], it
+            assert it["plan_status"] != "infeasible" or "beyond reach" in it["plan_message"], it
         assert d["closed_loop"]["final_error"]["within_tolerance"]
         assert d["closed_loop"]["final_error"]["position"] <= d["open_loop"]["final_error"]["position"]
 

@@ -144,6 +144,8 @@ CASES = {
         ["mujoco", "import", "{tmp}/x.xml"], ["<pair>", "nan", "x"]),
     "mjcf not XML": (files(x=XML.read_text().replace("</mujoco>", "")), ["mujoco", "import", "{tmp}/x.xml"],
                      ["not well-formed XML"]),
+    "mjcf floor one past the last geom": (files(x=XML.read_text()), ["mujoco", "import", "{tmp}/x.xml", "--floor",
+                                                                     "#999"], ["floor", "#999", "numbered #0 to"]),
     # -- 9. one line, blamed on the right input
     "unknown option": (files(s=BASE), ["simulate", "{tmp}/s.toml", "--out", "{out}", "--bogus"], ["--bogus"]),
     "missing --out": (files(s=BASE), ["identify", "{tmp}/s.toml", "--observations", "{tmp}/s.toml"], ["--out"]),

@@ -341,3 +341,58 @@ def test_a_bad_second_observation_file_exits_2_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == EXIT_BAD_INPUT and err.count("\n") == 1 and str(bad) in err and str(good) not in err
     assert not (tmp_path / "id").exists()
+
+
+def test_two_files_and_suggest_exit_0_in_both_orders(tmp_path, capsys):
+    """Issue 45: a long one-direction file and a short one with ``--suggest 2``, in either
+    order (the suggestion comes from the first file): exit 0, two directions, never a
+    LinAlgError of a design without information."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    long_obs, short_obs = observe(a, push(0.0, 4, distance=2e-4), seed=11), observe(b, push(100.0, 2), seed=12)
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    for k, files in enumerate(([long_obs, short_obs], [short_obs, long_obs])):
+        out = tmp_path / f"id{k}"
+        code = main(["identify", str(guess), "--observations", *map(str, files), "--out", str(out), "--quiet",
+                     "--suggest", "2"])
+        assert code in (0, 3), capsys.readouterr().err  # 3: a fit that did not converge, stated; never 1
+        doc = json.loads((out / "identified.json").read_text())
+        assert len(doc["suggested"]["directions_deg"]) == 2
+
+
+def test_a_file_without_an_observed_column_is_named(tmp_path, capsys):
+    guess = write_scenario(tmp_path / "guess.toml", "guess", {"mu_x": 0.25, "mu_y": 0.25, "angle_deg": 0.0})
+    good = observe(tmp_path, push(10.0, 2), seed=3)
+    bare = tmp_path / "commands_only.csv"
+    bare.write_text("dx,dy,dz,dtheta_deg\n0,0,-1e-4,0\n1e-4,0,0,0\n")
+    code = main(["identify", str(guess), "--observations", str(good), str(bare), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == EXIT_BAD_INPUT and len(err) == 1 and str(bare) in err[0] and "commands only" in err[0], err
+
+
+def test_a_design_without_information_falls_back_to_steady_sliding(monkeypatch):
+    """Issue 45's LinAlgError: a calibrated spring that never slides over the pushes gives
+    zero information (ridge 0, a singular matrix); the design then uses the steady-sliding
+    information, and a direction whose information is singular or NaN is never chosen."""
+    import pushplan.identify.design as design
+    from pushplan.config.observations import Observations
+    from pushplan.identify.noise import NoiseModel
+    from fe_contact import Command
+
+    theta = np.array([0.3, 0.15, 20.0])
+    assert design.greedy_directions(theta, 2, lambda ds: np.zeros((3, 3))) is None
+    assert design.greedy_directions(theta, 2, lambda ds: np.full((3, 3), np.nan)) is None
+    picked = design.greedy_directions(theta, 2, lambda ds: (np.eye(3) if len(ds) < 2 or ds[-1] != 0.0
+                                                            else np.full((3, 3), np.nan)))
+    assert len(picked) == 2 and 0.0 != picked[1]
+
+    monkeypatch.setattr(design, "sequence_information", lambda *a: np.zeros((3, 3)))
+    monkeypatch.setattr(design, "_checked", lambda sc, obs, noise, fit, directions, *a: directions)
+    cmds = (Command(dz=-1e-4), Command(dx=1e-4), Command(dx=1e-4))
+    obs = Observations(cmds, {"lower_x": np.array([0.0, 5e-5, 1.5e-4]), "lower_y": np.zeros(3),
+                              "force_x": np.array([0.0, 30.0, 30.0]), "force_y": np.zeros(3),
+                              "force_z": np.array([-100.0, -100.0, -100.0])})  # forces on the block
+    sc = type("S", (), {"mu_x": 0.3, "mu_y": 0.15, "angle_deg": 20.0})()
+    assert design.calibrated_spring(obs) is not None
+    assert len(design.suggest(sc, obs, NoiseModel(), 2)) == 2

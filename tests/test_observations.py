@@ -97,12 +97,12 @@ def test_simulate_writes_observations_of_the_run(tmp_path, suffix):
         assert obs.values["lower_x"][i] == s["lower_centroid"][0]
         assert obs.values["lower_y"][i] == s["lower_centroid"][1]
         assert obs.values["lower_yaw_deg"][i] == s["lower_yaw_deg"]
-        # the force on the gripper is the reaction of the drive force on the block
-        assert [obs.values[k][i] for k in ("force_x", "force_y", "force_z")] == [-f for f in s["upper_force"]]
+        # the force on the block (docs/conventions.md): upper_force
+        assert [obs.values[k][i] for k in ("force_x", "force_y", "force_z")] == list(s["upper_force"])
         assert obs.commands[i].dx == s["command"]["dx"] and obs.commands[i].dz == s["command"]["dz"]
-    # physics: pressed down, the block pushes the gripper up; pushed at 60 deg, it resists
-    assert obs.values["force_z"][0] > 0
-    assert obs.values["force_x"][-1] < 0 and obs.values["force_y"][-1] < 0
+    # physics (forces on the block): the gripper presses it down and drags it along the 60 deg push
+    assert obs.values["force_z"][0] < 0
+    assert obs.values["force_x"][-1] > 0 and obs.values["force_y"][-1] > 0
 
 
 def test_simulate_refuses_an_unknown_observation_format(tmp_path, capsys):

@@ -134,8 +134,11 @@ def test_a_block_that_does_not_settle_exits_3(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == EXIT_SOLVER_FAILURE
     assert len(err) == 1 and "did not settle" in err[0] and "one more step moves" in err[0], err
-    rest = json.loads((out / "summary.json").read_text())["rest"]
+    summary = json.loads((out / "summary.json").read_text())
+    rest = summary["rest"]
     assert rest["status"] == "not_settled" and "one more step moves" in rest["reason"]
+    # issue 43: the file says what the exit status says, never "completed" beside exit 3
+    assert summary["status"] == "failed" and "did not settle" in summary["failure"]["message"]
 
 
 def test_a_frictional_pad_round_trips_and_its_rest_says_so(tmp_path):

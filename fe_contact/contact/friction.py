@@ -33,11 +33,29 @@ __all__ = [
     "to_local",
     "to_global",
     "scaling_diagonal",
+    "MU_MAX",
 ]
 
 
+MU_MAX = 1e3
+"""Largest friction coefficient (each of ``mu_x``, ``mu_y``; any value from 0 up is
+allowed below it, a tiny one included).  Measured friction is below 10 (rubber on
+rubber 1-4).  Beyond about 1e8 the projection's ``1 + mu^2`` terms lose the normal
+component (NaN for ``mu_x = 1e200, mu_y = 0.1``) and the contact loop reported a
+converged press with the lower face 58-100 um inside the plane (``mu = 1e7``); at
+``MU_MAX`` a press holds the contact law (``tests/test_hardening_api.py``)."""
+
+
+def _real_array(name: str, v) -> np.ndarray:
+    """``v`` as a float array; a complex value is refused (numpy would drop its
+    imaginary part with only a warning)."""
+    if np.iscomplexobj(v) or (np.ndim(v) == 0 and isinstance(v, complex)):
+        raise ValueError(f"{name} must be real, got a complex value")
+    return np.asarray(v, dtype=float)
+
+
 def _as_contacts(name: str, v) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
+    a = _real_array(name, v)
     if a.ndim == 1 and a.shape[0] == 3:
         a = a[None, :]
     if a.ndim != 2 or a.shape[1] != 3:
@@ -50,12 +68,13 @@ def _as_contacts(name: str, v) -> np.ndarray:
 def _as_coefficients(mu_x, mu_y, n: int) -> tuple[np.ndarray, np.ndarray]:
     out = []
     for name, mu in (("mu_x", mu_x), ("mu_y", mu_y)):
-        m = np.asarray(mu, dtype=float)
+        m = _real_array(name, mu)
         if m.ndim > 1 or (m.ndim == 1 and m.shape[0] != n):
             raise ValueError(f"{name} must be a scalar or have shape ({n},), got {m.shape}")
-        if not np.all(np.isfinite(m)) or np.any(m < 0):
-            bad = m[~(np.isfinite(m) & (m >= 0))] if m.ndim else m
-            raise ValueError(f"{name} must be finite and >= 0, got {np.ravel(bad)[0]}")
+        ok = np.isfinite(m) & (m >= 0) & (m <= MU_MAX)
+        if not np.all(ok):
+            bad = m[~ok] if m.ndim else m
+            raise ValueError(f"{name} must be finite, >= 0 and <= {MU_MAX:g}, got {np.ravel(bad)[0]}")
         out.append(np.broadcast_to(m, (n,)).astype(float))
     return out[0], out[1]
 

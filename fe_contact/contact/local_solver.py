@@ -29,6 +29,7 @@ Methods
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
 import scipy.linalg as sla
@@ -250,8 +251,10 @@ def solve_local(
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if not (np.isfinite(tol) and tol > 0):
         raise ValueError(f"tol must be > 0, got {tol}")
-    if max_iter is not None and int(max_iter) < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, Integral) or max_iter < 1):
+        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    if isinstance(tol, bool) or not isinstance(tol, Real):
+        raise ValueError(f"tol must be a real number, got {tol!r}")
     if workspace is not None and not isinstance(workspace, NewtonWorkspace):
         raise ValueError(f"workspace must be a NewtonWorkspace, got {type(workspace).__name__}")
     Wd, qa, mx, my, ra = _validate(W, q, mu_x, mu_y, r0)

@@ -157,6 +157,12 @@ def _check_size(size) -> tuple[float, float, float]:
     return tuple(out)
 
 
+MAX_BLOCK_ELEMENTS = 10**8
+"""Most elements of :func:`block_mesh` (about 2.4 GB of node coordinates and 6.4 GB of
+connectivity): a larger mesh is refused by a ValueError naming its divisions, before
+any allocation, rather than a MemoryError."""
+
+
 def _check_divisions(divisions) -> tuple[int, int, int]:
     values = tuple(divisions)
     if len(values) != 3:
@@ -168,6 +174,10 @@ def _check_divisions(divisions) -> tuple[int, int, int]:
         if v < 1:
             raise ValueError(f"divisions {name} must be >= 1, got {v}")
         out.append(int(v))
+    nodes = (out[0] + 1) * (out[1] + 1) * (out[2] + 1)
+    if out[0] * out[1] * out[2] > MAX_BLOCK_ELEMENTS:
+        raise ValueError(f"divisions {tuple(out)} make {out[0] * out[1] * out[2]:.3g} elements, more than "
+                         f"{MAX_BLOCK_ELEMENTS:.0e} ({nodes:.3g} nodes, {nodes * 24 / 1e9:.3g} GB of coordinates alone)")
     return tuple(out)
 
 

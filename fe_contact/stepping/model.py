@@ -23,7 +23,7 @@ from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_
 from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
 
 from ..contact.bodies import ContactBody, ContactSet, horizontal_frame, stack_bodies
-from ..contact.friction import local_frame
+from ..contact.friction import MU_MAX, local_frame
 from ..contact.local_solver import METHODS as LOCAL_METHODS
 from .command import Command, _finite  # noqa: F401  (Command re-exported)
 from .report import IterLog, NodeStatus, Status, StepReport  # noqa: F401  (re-exported)
@@ -37,7 +37,8 @@ class Friction:
     ----------
     mu_x, mu_y : float
         Principal friction coefficients along the orthotropy axes ``t_x``, ``t_y``
-        (``>= 0``; both zero is frictionless contact).
+        (from 0 to ``MU_MAX`` = 1e3 of :mod:`fe_contact.contact.friction`;
+        both zero is frictionless contact).
     angle : float
         Angle of ``t_x`` from world x, counter-clockwise, rad.
     """
@@ -49,8 +50,8 @@ class Friction:
     def __post_init__(self):
         for name in ("mu_x", "mu_y"):
             v = _finite(name, getattr(self, name))
-            if v < 0:
-                raise ValueError(f"{name} must be >= 0, got {v}")
+            if not 0 <= v <= MU_MAX:
+                raise ValueError(f"{name} must be finite, >= 0 and <= {MU_MAX:g}, got {v}")
             object.__setattr__(self, name, v)
         object.__setattr__(self, "angle", _finite("angle", self.angle))
 

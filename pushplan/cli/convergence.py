@@ -66,8 +66,9 @@ def cmd_convergence(args) -> int:
                                       scheduler=args.scheduler)
         result = study(scenario, args.levels, args.ratio, run_levels=run_levels, log=log)
         paths = [tx.out / p.name for p in write(result, tx.path)]
-    _print(result)
-    print("wrote " + ", ".join(str(p) for p in paths))
+    if not args.quiet:  # warnings and errors only
+        _print(result)
+        print("wrote " + ", ".join(str(p) for p in paths))
     if not result.completed:
         failed = [lv.elements for lv in result.levels if lv.status != "completed"]
         print(f"pushplan: solver failure on the mesh(es) {failed}", file=sys.stderr)
@@ -93,6 +94,6 @@ def register(subparsers) -> None:
                    "(the sweep machinery; levels land in OUT/levels/)")
     p.add_argument("--executor", choices=("process", "dask"), help="sweep executor for the levels")
     p.add_argument("--scheduler", help="address of a running Dask scheduler for the levels")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     add_memory_flag(p)
     p.set_defaults(func=cmd_convergence)

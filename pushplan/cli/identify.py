@@ -56,7 +56,8 @@ def cmd_identify(args) -> int:
     obs = tuple(read_observations(path) for path in args.observations)
     noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, args.yaw_noise_deg,
                        args.force_resolution)
-    noise.sigma(obs, scenario.size)  # noise checks before anything is written
+    for path, o in zip(args.observations, obs, strict=True):  # noise checks before anything is written
+        _naming(path, noise.sigma, o, scenario.size)
     scenario.model()
     fit = ("mu_x", "mu_y", "angle_deg") + (("young",) if args.fit == "young" else ())
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
@@ -67,7 +68,8 @@ def cmd_identify(args) -> int:
         if args.suggest:
             from ..identify.design import suggest
 
-            doc["suggested"] = suggest(result.scenario(scenario), obs[0], noise, args.suggest, fit).to_dict()
+            doc["suggested"] = _naming(args.observations[0], suggest, result.scenario(scenario), obs[0], noise,
+                                       args.suggest, fit).to_dict()
             atomic_write_json(tx.path / "suggested_commands.json", _commands_file(doc["suggested"]))
         atomic_write_json(tx.path / "identified.json", doc)
         atomic_write_bytes(tx.path / "identified.toml", toml_text(
@@ -85,6 +87,17 @@ def cmd_identify(args) -> int:
         print("pushplan: the fit did not converge; the last iterate is written", file=sys.stderr)
         return EXIT_SOLVER_FAILURE
     return 0
+
+
+def _naming(path, function, *args):
+    """``function(*args)``, its :class:`InputError` about one observation file prefixed
+    with the file's path (the messages of :mod:`pushplan.identify` know the table only)."""
+    from ..errors import InputError
+
+    try:
+        return function(*args)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
 
 
 def add_noise_flags(p, yaw: bool = True) -> None:

@@ -53,7 +53,8 @@ def cmd_paper(args) -> int:
     with docs, tx:  # --docs: a shared folder (docs/figures) written file by file, atomically, locked
         report = run_paper(tx.path, elements=args.elements, quadrature=args.quadrature,
                            local_method=args.local_method, docs_dir=args.docs, progress=not args.quiet)
-    print_report(report, args.out)
+    if not args.quiet:  # warnings and errors only
+        print_report(report, args.out)
     if not report.completed:
         print(f"pushplan: solver failure in {', '.join(report.failed_cases)}", file=sys.stderr)
         return EXIT_SOLVER_FAILURE
@@ -74,6 +75,6 @@ def register(subparsers) -> None:
                    help="local contact solver (default: the scenarios'; the paper's is uzawa)")
     p.add_argument("--docs", metavar="DIR",
                    help="also copy the PNGs into DIR (the documentation's figures: --docs docs/figures)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     add_memory_flag(p)
     p.set_defaults(func=cmd_paper)

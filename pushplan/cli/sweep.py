@@ -50,6 +50,12 @@ def cmd_sweep(args) -> int:
         sweep, args.out, executor=args.executor, scheduler=args.scheduler, workers=args.workers,
         figure=args.figure, rerun_failed=args.rerun_failed, progress=None if args.quiet else print_case,
     )
+    if not args.quiet:  # the table and the files say it all; --quiet prints warnings and errors only
+        _print_totals(result, started)
+    return 0 if result.all_completed else EXIT_SOLVER_FAILURE
+
+
+def _print_totals(result, started: float) -> None:
     counts = {s: sum(r["status"] == s for r in result.rows) for s in ("completed", "failed", "error")}
     print(f"{len(result.rows)} cases ({len(result.ran)} run, {len(result.skipped)} already finished): "
           f"{counts['completed']} completed, {counts['failed']} failed, {counts['error']} errors "
@@ -57,7 +63,6 @@ def cmd_sweep(args) -> int:
     for paths in result.outputs.values():
         for p in paths:
             print(f"wrote {p}")
-    return 0 if result.all_completed else EXIT_SOLVER_FAILURE
 
 
 def register(subparsers) -> None:
@@ -74,6 +79,6 @@ def register(subparsers) -> None:
                    help="local pool / LocalCluster size (default: the file's, or CPU count)")
     p.add_argument("--figure", help="also write the heat map here, e.g. docs/figures/sweep_twist.png")
     p.add_argument("--rerun-failed", action="store_true", help="also rerun cases that ended in a solver failure")
-    p.add_argument("--quiet", action="store_true", help="no per-case lines")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
     add_memory_flag(p)
     p.set_defaults(func=cmd_sweep)

@@ -66,8 +66,8 @@ def bridge_settings(table: dict, name: str = "mujoco") -> BridgeSettings:
     flex_mu = t.data.get("flex_mu")
     return BridgeSettings(
         **{k: t.string(k, getattr(default, k)) for k in ("scene", "block", "floor", "gripper")},
-        control_period=t.number("control_period", default.control_period, positive=True, hi=MAX_CONTROL_PERIOD),
-        settle_time=t.number("settle_time", default.settle_time, nonneg=True, hi=MAX_CONTROL_PERIOD),
+        control_period=t.number("control_period", default.control_period, positive=True, maximum=MAX_CONTROL_PERIOD),
+        settle_time=t.number("settle_time", default.settle_time, nonneg=True, maximum=MAX_CONTROL_PERIOD),
         flex_points=t.triple("flex_points", _grid_points, default.flex_points),
         flex_mu=None if flex_mu is None else t.number("flex_mu", nonneg=True),
         force_factor=t.number("force_factor", default.force_factor, lo=1.0),  # above the sliding threshold

@@ -11,8 +11,9 @@ column             unit      meaning
 ``lower_x``        m         lower-face centroid displacement from rest, world x
 ``lower_y``        m         ... world y (``lower_centroid`` in ``summary.json``)
 ``lower_yaw_deg``  deg       lower-face yaw (``lower_yaw_deg`` in ``summary.json``)
-``force_x, _y, _z``  N       force of the block on the gripper (what a wrist F/T
-                             sensor reads): minus ``upper_force`` of ``summary.json``
+``force_x, _y, _z``  N       force the gripper applies on the block, world frame
+                             (what a wrist F/T sensor reads, ``upper_force`` of
+                             ``summary.json``; a press has force_z < 0)
 =================  ========  =====================================================
 
 The four command columns are required; any of the observed columns may be left out

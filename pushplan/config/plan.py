@@ -262,11 +262,11 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     if scenario.mu_x <= 0 or scenario.mu_y <= 0:
         raise InputError(f"planning needs friction in both directions, got mu_x = {scenario.mu_x}, "
                          f"mu_y = {scenario.mu_y}")
-    x, y = t.number("x", lo=-MAX_LENGTH, hi=MAX_LENGTH), t.number("y", lo=-MAX_LENGTH, hi=MAX_LENGTH)
+    x, y = t.number("x", minimum=-MAX_LENGTH, maximum=MAX_LENGTH), t.number("y", minimum=-MAX_LENGTH, maximum=MAX_LENGTH)
     yaw_targeted = "yaw_deg" in t
     yaw = math.radians(t.number("yaw_deg", lo=-180.0, hi=180.0)) if yaw_targeted else 0.0
     steps = t.integer("steps", minimum=1, maximum=MAX_PLAN_STEPS)
-    max_step = t.number("max_step", positive=True, hi=MAX_LENGTH)
+    max_step = t.number("max_step", positive=True, maximum=MAX_LENGTH)
     if max_step < MIN_PLAN_STEP:
         raise InputError(f"plan.max_step must be >= {MIN_PLAN_STEP} m (a smaller push is below the solver's "
                          f"tolerance), got {t.data['max_step']!r}")
@@ -291,7 +291,7 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         world_origin = None
     travel = math.hypot(x, y)
     if "tolerance" in t:
-        tolerance = t.number("tolerance", lo=MIN_TOLERANCE_LENGTH, hi=MAX_LENGTH)
+        tolerance = t.number("tolerance", minimum=MIN_TOLERANCE_LENGTH, maximum=MAX_LENGTH)
     elif travel > 0:
         tolerance = DEFAULT_TOLERANCE_REL * travel
     else:
@@ -303,7 +303,7 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         target=(x, y, yaw), yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
         tolerance=tolerance,
         yaw_tolerance=math.radians(t.number("yaw_tolerance_deg", DEFAULT_YAW_TOLERANCE_DEG, positive=True, hi=180.0)),
-        effort_weight=t.number("effort_weight", DEFAULT_EFFORT_WEIGHT, nonneg=True, hi=MAX_EFFORT_WEIGHT),
+        effort_weight=t.number("effort_weight", DEFAULT_EFFORT_WEIGHT, nonneg=True, maximum=MAX_EFFORT_WEIGHT),
         planning_elements=_planning_elements(t),
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=2, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1, maximum=MAX_ROLLOUTS),

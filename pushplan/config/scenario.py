@@ -58,7 +58,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import (AUTO_FBAR_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
-                        Model, Release, SolverOptions, block_mesh)
+                        Model, MU_MAX, Release, SolverOptions, block_mesh)
 
 from ..errors import InputError, InputWarning
 from ..limits import (MAX_ACCELERATION, MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH,
@@ -229,7 +229,7 @@ def _stiffness(t: Table, k: str) -> float:
     value = t.data[k]
     if isinstance(value, float) and value == math.inf:
         return value  # a rigid drive, written as inf
-    return t.number(k, positive=True, hi=MAX_GRIPPER_STIFFNESS)
+    return t.number(k, positive=True, maximum=MAX_GRIPPER_STIFFNESS)
 
 
 def _gripper(top: Table) -> tuple[Gripper | None, Friction | None]:
@@ -262,10 +262,16 @@ def _pad_friction(t: Table) -> Friction | None:
         return None
     if isinstance(value, dict):
         f = t.table("friction", {"mu_x", "mu_y", "angle_deg"}, required={"mu_x", "mu_y"})
-        return Friction(f.number("mu_x", nonneg=True), f.number("mu_y", nonneg=True),
+        return Friction(_mu(f, "mu_x"), _mu(f, "mu_y"),
                         math.radians(f.number("angle_deg", 0.0)))
-    mu = t.number("friction", nonneg=True)
+    mu = _mu(t, "friction")
     return Friction(mu, mu)
+
+
+def _mu(t: Table, k: str) -> float:
+    """A friction coefficient: from 0 to fe_contact's ``MU_MAX`` (beyond it the cone's
+    scaling overflows and a step could not be trusted)."""
+    return t.number(k, nonneg=True, maximum=MU_MAX)
 
 
 def pad_friction_dict(pad: Friction | None):
@@ -290,11 +296,11 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     if depth >= 0:
         raise InputError(f"release.mode = {mode!r} needs a press before it: the loads' dz must sum to < 0 m, "
                          f"got {depth:g}")
-    height = t.number("height", 0.0, nonneg=True, hi=MAX_LENGTH)
+    height = t.number("height", 0.0, nonneg=True, maximum=MAX_LENGTH)
     away = t.data.get("away", [0.0, 0.0])
     if not isinstance(away, list) or len(away) != 2:
         raise InputError(f"release.away must be [dx, dy] in m, got {away!r}")
-    away = tuple(number(f"release.away[{i}]", v, lo=-MAX_LENGTH, hi=MAX_LENGTH) for i, v in enumerate(away))
+    away = tuple(number(f"release.away[{i}]", v, minimum=-MAX_LENGTH, maximum=MAX_LENGTH) for i, v in enumerate(away))
     error_tol = t.number("error_tol", DEFAULT_ERROR_TOL, lo=0.0, hi=1.0)
     return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height,
                    away=away, error_tol=error_tol)
@@ -352,8 +358,8 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         quadrature=quadrature,
         young=material.number("young", positive=True),
         poisson=material.number("poisson", lo=-1.0, hi=0.5),
-        mu_x=friction.number("mu_x", nonneg=True),
-        mu_y=friction.number("mu_y", nonneg=True),
+        mu_x=_mu(friction, "mu_x"),
+        mu_y=_mu(friction, "mu_y"),
         angle_deg=friction.number("angle_deg", 0.0),
         commands=commands,
         solver=_solver(data.get("solver", {})),

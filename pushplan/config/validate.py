@@ -19,8 +19,10 @@ from ..limits import MAX_COUNT
 _MISSING = object()
 
 
-def number(key: str, value: Any, *, positive=False, nonneg=False, lo=None, hi=None) -> float:
-    """``value`` as a finite float; bounds ``lo < v < hi`` (exclusive) when given."""
+def number(key: str, value: Any, *, positive=False, nonneg=False, lo=None, hi=None, minimum=None, maximum=None) -> float:
+    """``value`` as a finite float; open bounds ``lo < v < hi`` (a physical limit the
+    value must not reach, Poisson's 0.5) and closed ones ``minimum <= v <= maximum`` (a
+    cap of :mod:`pushplan.limits`: "at most", the value itself allowed) when given."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"{key} must be a number, got {short(value)}")
     try:
@@ -37,6 +39,10 @@ def number(key: str, value: Any, *, positive=False, nonneg=False, lo=None, hi=No
         raise InputError(f"{key} must be > {lo}, got {short(value)}")
     if hi is not None and not v < hi:
         raise InputError(f"{key} must be < {hi}, got {short(value)}")
+    if minimum is not None and not v >= minimum:
+        raise InputError(f"{key} must be >= {minimum}, got {short(value)}")
+    if maximum is not None and not v <= maximum:
+        raise InputError(f"{key} must be <= {maximum} (at most), got {short(value)}")
     return v
 
 

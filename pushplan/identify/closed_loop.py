@@ -105,6 +105,7 @@ class Iteration:
     observed: np.ndarray
     friction: dict
     plan_status: str
+    plan_message: str  # why the plan behind the push has its status (the bound or tolerance it misses)
     plan_fe_rollouts: int
     identified: dict | None
     wall_time: float
@@ -115,7 +116,7 @@ class Iteration:
         return {"step": self.step, "command": command_to_dict(self.command), "observed_pose": [x, y, math.degrees(yaw)],
                 "planned_path": [_pose_json(p) for p in self.planned],
                 "planned_with": self.friction, "plan_status": self.plan_status,
-                "plan_fe_rollouts": self.plan_fe_rollouts, "identified": self.identified, "wall_time_s": self.wall_time}
+                "plan_message": self.plan_message, "plan_fe_rollouts": self.plan_fe_rollouts, "identified": self.identified, "wall_time_s": self.wall_time}
 
 
 def _friction(sc: Scenario) -> dict:
@@ -248,7 +249,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
         drift = np.zeros(3) if use_identify else drift + bias
         springback = result.springback.fractions
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
-                                    sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
+                                    result.message, sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
             log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")

@@ -76,9 +76,9 @@ def calibrated_spring(obs: Observations):
         return None
     upper = np.cumsum([[c.dx, c.dy] for c in obs.commands], axis=0)
     lag = upper - np.stack([obs.values["lower_x"], obs.values["lower_y"]], axis=1)
-    g = -np.stack([obs.values["force_x"], obs.values["force_y"]], axis=1)
+    g = np.stack([obs.values["force_x"], obs.values["force_y"]], axis=1)  # the drive force on the block
     gg = float((g * g).sum())
-    normal = float(np.max(obs.values["force_z"]))  # the pressed rows' (a last row after a release has none)
+    normal = float(np.max(-obs.values["force_z"]))  # the pressed rows' (a last row after a release has none)
     compliance = float((lag * g).sum()) / gg if gg > 0 else 0.0
     if compliance <= 0 or normal <= 0:
         return None  # not a spring: the steady-sliding information stands in
@@ -109,15 +109,24 @@ def sequence_information(theta, directions, distance: float, spring, noise: Nois
     return J.T @ J
 
 
-def greedy_directions(theta, n: int, information) -> list[float]:
+def greedy_directions(theta, n: int, information) -> list[float] | None:
     """``n`` directions (deg), each minimising the largest standard deviation in units of
-    the identifiability limit given the ones before; ``information(directions)`` is 3 x 3."""
+    the identifiability limit given the ones before; ``information(directions)`` is 3 x 3.
+    None when no single direction carries information (zero or non-finite)."""
     scale = max(float(np.trace(information([d]))) for d in CANDIDATES[::6])
+    if not (math.isfinite(scale) and scale > 0):
+        return None  # the model predicts no information at all (no push slides): the caller's fallback
     ridge = RIDGE * scale * np.eye(3)
     chosen: list[float] = []
 
     def worst(d):
-        return float(np.max(np.diag(np.linalg.inv(ridge + information(chosen + [float(d)])))))
+        info = ridge + information(chosen + [float(d)])
+        if not np.all(np.isfinite(info)):
+            return math.inf
+        try:
+            return float(np.max(np.diag(np.linalg.inv(info))))
+        except np.linalg.LinAlgError:  # singular to rounding: this direction adds nothing usable
+            return math.inf
 
     for _ in range(n):
         chosen.append(float(min(CANDIDATES, key=worst)))
@@ -163,11 +172,15 @@ def suggest(scenario: Scenario, obs: Observations, noise: NoiseModel, n: int, fi
             raise InputError("--suggest needs at least one in-plane push in the observations (its length)")
     theta = np.array([scenario.mu_x, scenario.mu_y, scenario.angle_deg])
     spring = calibrated_spring(obs)
-    if spring is not None:
+    directions = None
+    if spring is not None:  # None too when the calibrated spring never slides over these pushes
         directions = greedy_directions(theta, n, lambda ds: sequence_information(theta, ds, distance, spring, noise))
-    else:
-        normal = max(float(np.max(obs.values["force_z"])), 1e-300) if "force_z" in obs.values else 1.0
+    if directions is None:
+        normal = max(float(np.max(-obs.values["force_z"])), 1e-300) if "force_z" in obs.values else 1.0
         directions = greedy_directions(theta, n, lambda ds: steady_information(theta, ds, normal, noise))
+    if directions is None:
+        raise InputError(f"--suggest: the friction estimate ({theta[0]:g}, {theta[1]:g}, {theta[2]:g} deg) gives "
+                         "no push any information on the friction")
     commands = press + tuple(Command(distance * math.cos(math.radians(d)), distance * math.sin(math.radians(d)), 0.0,
                                      0.0) for d in directions)
     return _checked(scenario, obs, noise, fit, directions, distance, commands)

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fe_contact import MU_MAX
+
 from ..config.scenario import Scenario
 from ..errors import InputError
 from .forward import PARAMETERS, FePredictor, IdentificationError, as_files, stacked, with_parameters
@@ -129,7 +131,7 @@ def _clip(names, theta) -> np.ndarray:
     t = theta.copy()
     for j, k in enumerate(names):
         if k in ("mu_x", "mu_y"):
-            t[j] = max(t[j], MU_FLOOR)
+            t[j] = min(max(t[j], MU_FLOOR), MU_MAX)  # fe_contact's range of a coefficient
         elif k == "young":
             t[j] = max(t[j], 1e-3 * abs(theta[j]))
     return t

@@ -23,10 +23,10 @@ PARAMETERS = ("mu_x", "mu_y", "angle_deg", "young")
 _FE_PARAMETER = {"mu_x": ("mu_x", 1.0), "mu_y": ("mu_y", 1.0), "angle_deg": ("angle", math.pi / 180.0),
                  "young": ("young", 1.0)}
 """fe_contact's name of each parameter and d(its value) / d(scenario value)."""
-_FE_OUTPUT = {"lower_x": (0, 1.0), "lower_y": (1, 1.0), "lower_yaw_deg": (2, 180.0 / math.pi), "force_x": (3, -1.0),
-              "force_y": (4, -1.0), "force_z": (5, -1.0)}
+_FE_OUTPUT = {"lower_x": (0, 1.0), "lower_y": (1, 1.0), "lower_yaw_deg": (2, 180.0 / math.pi), "force_x": (3, 1.0),
+              "force_y": (4, 1.0), "force_z": (5, 1.0)}
 """Row of each observed column among fe_contact's rollout outputs, and its factor
-(degrees; the observed force is the block's on the gripper)."""
+(degrees; the observed force is the gripper's on the block, ``upper_force``)."""
 
 
 class IdentificationError(SolverFailure):

@@ -40,8 +40,8 @@ class NoiseModel:
     def __post_init__(self):
         if not MIN_POSE_NOISE <= number("pose_noise", self.pose_noise, positive=True) <= MAX_POSE_NOISE:
             raise InputError(f"pose_noise must be from {MIN_POSE_NOISE} to {MAX_POSE_NOISE} m, got {self.pose_noise}")
-        number("force_noise", self.force_noise, nonneg=True, hi=MAX_FORCE_NOISE)
-        number("force_noise_rel", self.force_noise_rel, nonneg=True, hi=MAX_FORCE_NOISE_REL)
+        number("force_noise", self.force_noise, nonneg=True, maximum=MAX_FORCE_NOISE)
+        number("force_noise_rel", self.force_noise_rel, nonneg=True, maximum=MAX_FORCE_NOISE_REL)
         number("force_resolution", self.force_resolution, positive=True)
         if self.yaw_noise_deg is not None and number("yaw_noise_deg", self.yaw_noise_deg,
                                                      positive=True) < MIN_YAW_NOISE_DEG:

@@ -61,8 +61,8 @@ def _sliding_forces(obs: Observations, pose_noise: float):
     if any(k not in obs.values for k in PREFIT_COLUMNS):
         return np.zeros((0, 2)), np.zeros((0, 2))
     rows = sliding_rows(obs, pose_noise)
-    g = -np.stack([obs.values["force_x"][rows], obs.values["force_y"][rows]], axis=1)
-    return slip_directions(obs, rows), g / obs.values["force_z"][rows, None]
+    g = np.stack([obs.values["force_x"][rows], obs.values["force_y"][rows]], axis=1)  # the drive force on the block
+    return slip_directions(obs, rows), g / -obs.values["force_z"][rows, None]
 
 
 def prefit(obs, theta0, pose_noise: float):

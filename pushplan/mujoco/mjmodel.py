@@ -47,9 +47,15 @@ def find_object(m, objtype, name: str, what: str) -> int:
     InputError
         No such object; ``what`` names its role in the message.
     """
-    if name.startswith("#") and name[1:].isdigit():
-        return int(name[1:])
-    i = mujoco_module().mj_name2id(m, objtype, name)
+    mj = mujoco_module()
+    if name.startswith("#") and name[1:].isascii() and name[1:].isdigit():
+        kind = str(mj.mjtObj(objtype).name).removeprefix("mjOBJ_").lower()  # "geom", "body", "site"
+        n = int(getattr(m, f"n{kind}"))
+        i = int(name[1:]) if len(name) <= 20 else n
+        if not i < n:
+            raise InputError(f"{what} {name[:24]!r}: the MJCF model has {n} {kind}(s), numbered #0 to #{n - 1}")
+        return i
+    i = mj.mj_name2id(m, objtype, name)
     if i < 0:
         raise InputError(f"{what} {name!r} not found in the MJCF model")
     return i
@@ -128,5 +134,5 @@ def check_mujoco_work(n_commands: int, seconds_per_command: float, timestep: flo
     steps = n_commands * seconds_per_command / timestep
     if not steps <= MAX_MUJOCO_STEPS:
         raise InputError(f"{n_commands} commands of {seconds_per_command:g} s at the MuJoCo timestep {timestep:g} s "
-                         f"are {steps:.3g} steps, more than {MAX_MUJOCO_STEPS} (a longer timestep, control_period "
+                         f"are {steps:.6g} steps, more than {MAX_MUJOCO_STEPS} (a longer timestep, control_period "
                          "or settle_time, or fewer commands)")

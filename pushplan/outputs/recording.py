@@ -79,6 +79,7 @@ parser) stays cheap.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import math
@@ -220,7 +221,8 @@ class Recorder:
                                              send_properties=log_time,
                                              batcher_config=rr.ChunkBatcherConfig.NEVER())
             self.stream.set_log_time_enabled(log_time)
-            self.stream.save(self._tmp, default_blueprint=self._blueprint(plan=False))
+            with _writing(self._tmp, self.path):
+                self.stream.save(self._tmp, default_blueprint=self._blueprint(plan=False))
         except BaseException:
             self._tmp.unlink(missing_ok=True)
             raise
@@ -458,15 +460,9 @@ class Recorder:
                         self._rr.Points3D(xyz, colors=[colour]))
 
     def _flush(self) -> None:
-        """Flush the stream; a full disk is the OSError it is (rerun reports it as a
-        RuntimeError of its file-writer thread)."""
-        try:
+        """Flush the stream (a full disk is an OSError, :func:`_writing`)."""
+        with _writing(self._tmp, self.path):
             self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        except RuntimeError as exc:
-            st = os.statvfs(self._tmp.parent)
-            if st.f_bavail * st.f_frsize >= FULL_DISK_BYTES:
-                raise  # not a full disk: a bug or a rerun failure, with its traceback
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path)) from exc
 
     # -- closing -----------------------------------------------------------------------
     def log_rest(self, rest) -> None:
@@ -484,8 +480,13 @@ class Recorder:
         if not self._closed:
             self._closed = True
             self._log_fixed_scales()
-            self._flush()
-            self.stream.disconnect()
+            try:
+                self._flush()
+                with _writing(self._tmp, self.path):
+                    self.stream.disconnect()
+            except BaseException:
+                self._tmp.unlink(missing_ok=True)  # nothing half-written left behind
+                raise
             commit_temporary(self._tmp, self.path)
         return self.path
 
@@ -494,3 +495,19 @@ class Recorder:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@contextlib.contextmanager
+def _writing(tmp: Path, path: Path):
+    """A full disk while rerun writes ``tmp`` (its file-writer reports it as a
+    ``RuntimeError``: "Failed to encode LogMsg ... No space left on device", from
+    ``save``, ``flush`` or ``disconnect``) becomes the ``OSError(ENOSPC)`` naming
+    ``path`` that the CLI reports on one line (exit 1); any other RuntimeError is a bug
+    and keeps its traceback."""
+    try:
+        yield
+    except RuntimeError as exc:
+        st = os.statvfs(tmp.parent)
+        if "No space left" not in str(exc) and st.f_bavail * st.f_frsize >= FULL_DISK_BYTES:
+            raise
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path)) from exc

@@ -50,8 +50,18 @@ class RecordingProcess:
         job_r, job_w = os.pipe()
         reply_r, reply_w = os.pipe()
         parent = os.getpid()
-        pid = os.fork()
+        # Ctrl-C signals the whole process group: held back across the fork, so the child
+        # ignores it from its first instruction (before, a SIGINT between the fork and its
+        # SIG_IGN interrupted the child's import of rerun); the parent gets it after.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            pid = os.fork()
+        except BaseException:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+            raise
         if pid == 0:  # the child: never returns
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held SIGINT is now ignored
             os.close(job_w)
             os.close(reply_r)
             _serve(job_r, reply_w, parent)
@@ -59,6 +69,11 @@ class RecordingProcess:
         os.close(reply_w)
         self._pid = pid
         self._job, self._reply = os.fdopen(job_w, "wb"), os.fdopen(reply_r, "rb")
+        try:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held Ctrl-C is raised here
+        except BaseException:
+            self._finish()
+            raise
         return self
 
     def run(self, fn, *args) -> None:
@@ -133,7 +148,6 @@ def _serve(job_r: int, reply_w: int, parent: int) -> None:
     gc.freeze()
     code = 0
     try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
         _die_with_parent(parent)
         try:
             import rerun  # noqa: F401  (the point: loaded before the job comes)

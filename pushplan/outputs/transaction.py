@@ -317,6 +317,14 @@ class OutputTransaction:
         self.begin()
         return self
 
+    def _named(self, filename) -> Path:
+        """The output file a failed write was for, as it would have been named in
+        ``out`` (``out/recording.rrd``), else ``out`` itself."""
+        try:
+            return self.out / Path(os.fsdecode(filename)).resolve().relative_to(Path(self.path).resolve())
+        except (TypeError, ValueError, OSError):
+            return self.out
+
     def __exit__(self, exc_type, exc, tb) -> bool:
         try:
             if exc_type is None:
@@ -329,9 +337,10 @@ class OutputTransaction:
                         raise
                     raise failure from None
             else:
+                where = self._named(getattr(exc, "filename", None))  # before abort() forgets the folder
                 self.abort()
                 if isinstance(exc, OSError) and not isinstance(exc, OutputFailure):
-                    failure = output_failure(exc, self.out)
+                    failure = output_failure(exc, where)
                     if failure is not None:
                         raise failure from None
         finally:

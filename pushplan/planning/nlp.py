@@ -13,7 +13,10 @@ steps are active (the last ``K - m`` are held still: zero command).
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -199,10 +202,11 @@ class ReducedPlanner:
         opti.set_initial(self._rho, guess["rho"])
         opti.set_initial(self._sigma, guess["sigma"])
         t0 = time.perf_counter()
-        try:
-            sol = opti.solve()
-        except RuntimeError:
-            sol = opti.debug
+        with interrupts_kept():
+            try:
+                sol = opti.solve()
+            except RuntimeError:  # ipopt's failure: its last iterate (a Ctrl-C is raised after)
+                sol = opti.debug
         wall = time.perf_counter() - t0
         stats = opti.stats()
         value = sol.value
@@ -221,6 +225,34 @@ class ReducedPlanner:
             wall_time=wall,
             variables={"A": mat(self._A, self._A.shape[0]), "rho": mat(self._rho, 1), "sigma": mat(self._sigma, 1)},
         )
+
+
+@contextlib.contextmanager
+def interrupts_kept():
+    """Raise ``KeyboardInterrupt`` after the block when a Ctrl-C (SIGINT) came during it.
+
+    CasADi runs Python's signal handler from inside ipopt and turns the
+    ``KeyboardInterrupt`` into a failed solve (a ``RuntimeError``, or a last iterate):
+    without this guard a Ctrl-C in the NLP went on to a complete "converged" plan, exit
+    0.  Only in the main thread with Python's own handler installed (a SIGINT ignored
+    stays ignored)."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield
+        return
+    hit: list[int] = []
+
+    def handler(signum, frame):
+        hit.append(signum)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if hit:
+        raise KeyboardInterrupt
 
 
 def _padded(variables: dict, horizon: int, active: int | None = None) -> dict:

@@ -127,11 +127,23 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
                 rest = rest_check(model, run.state, run.reports[-1], sequence.schedule, step)
                 run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
                                                            pad_friction_dict(model.pad))
+                _unsettled_is_a_failure(run.summary, run.reports[-1].step_index)
         run.summary.elapsed_s = time.perf_counter() - t0
         _call(observers, "finish", run)
     finally:
         _call(observers, "close", run)
     return run
+
+
+def _unsettled_is_a_failure(summary: RunSummary, last_step: int) -> None:
+    """A release whose block did not settle ends the run as failed (``summary.json``'s
+    ``status`` and ``failure`` say so, as the exit status 3 does): the one place that
+    decides, so the file and the exit status cannot disagree."""
+    rest = summary.rest
+    if rest is not None and not rest.settled:
+        summary.status = RunStatus.FAILED
+        summary.failure = Failure(rest.step if rest.step is not None else last_step, rest.status,
+                                  f"the block did not settle after the release: {rest.reason}")
 
 
 def _record(run: Run, new_state: State, report: StepReport, keep_states: bool, phase: str) -> None:

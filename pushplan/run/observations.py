@@ -1,8 +1,9 @@
 """Observation files of a run (:mod:`pushplan.config.observations`): what a robot
 would have observed had the FE model been the real block.
 
-The observed force is the force of the block on the gripper, ``-upper_force`` of the
-step summary (``upper_force`` is the force the drive applies on the block).
+The observed force is ``upper_force`` of the step summary: the force the gripper
+applies on the block, what a wrist force sensor between the arm and the hand reads
+(docs/conventions.md, the one sign convention of forces).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ def observed_values(steps) -> dict:
     """Every observed column of :data:`OBSERVED_COLUMNS` from step summaries, (K,) arrays."""
     steps = list(steps)
     lower = np.array([s.lower_centroid for s in steps], float).reshape(-1, 3)
-    force = -np.array([s.upper_force for s in steps], float).reshape(-1, 3)
+    force = np.array([s.upper_force for s in steps], float).reshape(-1, 3)
     yaw = np.array([math.degrees(s.lower_yaw) for s in steps], float)
     columns = (lower[:, 0], lower[:, 1], yaw, force[:, 0], force[:, 1], force[:, 2])
     return dict(zip(OBSERVED_COLUMNS, columns, strict=True))

@@ -6,6 +6,15 @@ into dicts only at the file boundary (``summary.json``).
 
 Names in ``summary.json`` (per step):
 
+``upper_force``
+    N, world frame: the force the gripper applies on the block's upper face, what a
+    wrist force sensor between the arm and the hand reads (a press has ``z < 0``).
+    The one sign convention of forces (docs/conventions.md): every force is the force
+    *on the block*; observation files' ``force_x, _y, _z`` are this one.
+``tangential_force``, ``normal_force``
+    N: the floor's friction force on the block (world x, y) and its normal force
+    (``> 0`` in compression).
+
 ``lower_direction_deviation_deg``
     Signed angle from the upper-face to the lower-face in-plane centroid displacement
     (where the lower face went, against where the gripper took the upper face);

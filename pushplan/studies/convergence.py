@@ -201,7 +201,11 @@ def figure(result: ConvergenceStudy) -> bytes:
     ax.set_ylabel("|value - extrapolated| / |extrapolated|")
     ax.set_title(f"mesh convergence: {result.scenario.name}")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+    else:  # no quantity with an extrapolated value and two non-zero errors: say so, no empty legend
+        ax.text(0.5, 0.5, "no quantity has an extrapolated limit to plot against", transform=ax.transAxes,
+                ha="center", va="center", fontsize=8)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)

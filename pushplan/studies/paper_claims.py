@@ -132,9 +132,17 @@ def slip_shape(model: Model, slip: np.ndarray) -> dict:
         "iso_level": level,
         "iso_radius_x": float(np.mean(rx)),
         "iso_radius_y": float(np.mean(ry)),
-        "iso_aspect_x_over_y": float(np.mean(rx) / np.mean(ry)),
+        "iso_aspect_x_over_y": _ratio(float(np.mean(rx)), float(np.mean(ry))),
         "worst_ray_decrease": float(drop.max() / smax) if smax > 0 else 0.0,
     }
+
+
+def _ratio(a: float, b: float) -> float:
+    """``a / b`` without numpy's RuntimeWarning: nan when either extent is unknown (a
+    profile that never reaches the level), inf for a zero ``b``."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return float("nan")
+    return a / b if b != 0 else float("inf")
 
 
 def _spread(values) -> float:
