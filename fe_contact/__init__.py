@@ -52,6 +52,7 @@ from .stepping.model import (
     build_model,
     initial_state,
 )
+from .stepping.command import PadLoad
 from .stepping.release import Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
 from .stepping.derivatives import RolloutDerivatives, check_derivatives, rollout_derivatives
@@ -73,6 +74,7 @@ __all__ = [
     "Model",
     "NodeStatus",
     "Release",
+    "PadLoad",
     "ReleaseSchedule",
     "Rest",
     "RolloutDerivatives",

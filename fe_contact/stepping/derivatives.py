@@ -36,9 +36,8 @@ from one more input column (the step's own height).  The path matters: the
 put-down overshoots below ``h*`` and comes back, and the contacts that slip
 on the way keep it.  A frictional pad's release
 (:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
-differentiated the same way, its lift's heights by
-:func:`~fe_contact.stepping.release_path.pad_lift_rise`, each step through
-the parts its error control kept.  Open releases (``open > 0``) and a
+differentiated the same way, each load step's height as the root of its
+load (:func:`_load_root`).  Open releases (``open > 0``) and a
 release with a retreat are not differentiated.
 """
 
@@ -52,10 +51,9 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .release import Release
-from .step import step
+from .step import half_command, step
 from .release_derivatives import RecordingSequence, put_down_root, release_height_derivative
 from .predictor import commanded_pose
-from .adaptive import half_command
 from .sequence import StepSequence
 from .pad_sensitivity import PadLinearisation
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
@@ -241,9 +239,12 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
         parts = _whole_steps(model, [(state, new_state, report)])
         sequence.taken = []
     else:  # a release step: its height as the schedule chose it; the last column is its own
-        d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
-                                               seeds[PARAMETERS.index("young")], seeds[PARAMETERS.index("density")])
-        d_whole[2] -= d_state.pose[2]
+        load = sequence.schedule.height_partials.get("load")  # a pad's load step: its height found with its load
+        if load is None:
+            d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
+                                                   seeds[PARAMETERS.index("young")],
+                                                   seeds[PARAMETERS.index("density")])
+            d_whole[2] -= d_state.pose[2]
         d_whole[2, -1] = 1.0
         for name in ("displacement", "pose", "plate"):
             getattr(d_state, name)[:, -1] = 0.0
@@ -260,9 +261,34 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
+    if k >= K and load:
+        d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
+            seeds[PARAMETERS.index("density")]
+        result = _load_root(result, load[0], d_target)
     if len(parts) == 1 and parts[0][1] is new_state:
         return result
-    return new_state, d_state, result[2], result[3]
+    return new_state, result[1], result[2], result[3]
+
+
+def _load_root(result, load: float, d_load: np.ndarray):
+    """A pad's load step (:mod:`fe_contact.stepping.pad_load`) found its height
+    ``h`` where the pad's vertical force is ``F_z(h, p) = -P(p)`` (``P`` the
+    step's load, of the loaded load and the weight,
+    :func:`~fe_contact.stepping.release.pad_load_schedule`; ``d_load`` its
+    derivative (J,)): ``dh/dp = -(dF_z/dp + dP/dp) / (dF_z/dh)`` (implicit
+    function theorem, ``dF_z/dh`` the last column, the step's own height),
+    added to every derivative through its last column.  At ``P = 0`` the pad
+    is open and the block's state does not depend on ``h``."""
+    state, d_state, outputs, d_out = result
+    if load == 0:
+        return result
+    g = d_out[OUTPUTS.index("force_z")] + d_load
+    dh = -g / g[-1]
+    dh[-1] = 0.0
+    d_out = d_out + np.outer(d_out[:, -1], dh)
+    d_state = StateDerivative(*(x + np.outer(x[:, -1], dh) for x in (d_state.displacement, d_state.pose,
+                                                                       d_state.plate)))
+    return state, d_state, outputs, d_out
 
 
 def _whole_steps(model, parts):

@@ -76,9 +76,13 @@ class SolverOptions:
         Tolerance on the out-of-balance force of the free dofs, relative to the
         largest of the contact and upper-face reaction norms and the step's
         predictor out-of-balance force (which keeps it meaningful when the
-        block is lifted off and all forces vanish).
+        block is lifted off and all forces vanish); a step whose last
+        correction is at rounding level of the displacements has converged
+        too (its force is what rounding allows).
     newton_max_iter : int
-        Iteration limit of the equilibrium loop.
+        Iteration limit of the equilibrium loop (a bound on its cost, not a
+        convergence test: a loop whose force stops falling ends earlier,
+        "stalled at r", :mod:`fe_contact.stepping.newton`).
     reuse_tangent : bool
         Modified Newton: keep the tangent (its factorisation and the flexibility
         matrix) from iteration to iteration and from step to step, refreshing it
@@ -107,7 +111,7 @@ class SolverOptions:
     local_tol: float = 1e-10
     local_max_iter: int | None = None
     newton_tol: float = 1e-10
-    newton_max_iter: int = 30
+    newton_max_iter: int = 100
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
     pad_regularisation: float = 1e-2
