@@ -132,3 +132,18 @@ def test_the_default_newton_cap_is_a_bound_not_a_test():
     _, reports = run(m, LOADS[:2])
     assert max(r.newton_iterations for r in reports) < 30
     assert np.all([r.converged for r in reports])
+
+
+@pytest.mark.parametrize("pad_mu, method", [(0.005, "newton"), (0.0, "newton"), (0.5, "uzawa")])
+def test_releases_that_never_ended_end(pad_mu, method):
+    """Issue 43's reproducers (each killed after 60 s before): on a 2 x 2 x 1 block a
+    pad of 1/100 of the floor's friction, a frictionless pad, and a pad with the
+    Uzawa local solver (the load equation's local solves are semismooth Newton's,
+    tight, falling back to the chosen method) settle in 16 load steps, each
+    within a few Newton iterations (measured at most 104 in all)."""
+    m = Model(block_mesh((0.02, 0.02, 0.01), (2, 2, 1)), Material(2e6, 0.3, density=1000.0), Friction(0.5, 0.5),
+              pad=Friction(pad_mu, pad_mu), options=SolverOptions(local_method=method))
+    state, pushes = run(m, [Command(dz=-2e-4), Command(dx=3e-4)])
+    _, release, rest = release_to_rest(m, state, Release("lift", 16), pushes[-1])
+    assert rest.settled, rest.reason
+    assert sum(r.newton_iterations for r in release) <= 16 * 10

@@ -338,7 +338,7 @@ FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
 
 
 def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace,
-                   tol: float | None = None):
+                   tol: float | None = None, method: str | None = None):
     """The local contact problem ``u = W r + q`` of an iteration (scaled, see
     :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
     warm-started at ``r``; if that does not converge, retried with Newton
@@ -347,11 +347,13 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
     :data:`FALLBACK` of the method warm-started (semismooth Newton and the
     paper's Uzawa fail on different problems).  The solution's ``method`` says
     which one solved it; if none did, the one with the smallest residual is
-    returned.  ``tol`` replaces ``SolverOptions.local_tol`` (a pad's load
-    equation needs its forces tighter, :mod:`fe_contact.stepping.pad_load`)."""
+    returned.  ``tol`` and ``method`` replace ``SolverOptions.local_tol`` and
+    ``local_method`` (a pad's load equation needs its forces tighter than a
+    warm-started Uzawa gives them, :mod:`fe_contact.stepping.pad_load`)."""
     opts = model.options
     best = None
-    attempts = ((opts.local_method, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[opts.local_method], r, True))
+    first = method or opts.local_method
+    attempts = ((first, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[first], r, True))
     for method, start, spd in attempts:
         # the tangent's W was checked when built, q above, r by the last solve
         local = solve_checked(
@@ -391,11 +393,9 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         if drive is None:
             local = _solve_contact(model, tangent, q_scaled, r, workspace)
         else:  # the pad's height with its load equation (fe_contact.stepping.pad_load)
-            def load_solve(q, start):  # tight where semismooth Newton gets there, else as any step's
-                local = None if opts.local_method != "newton" else _solve_contact(model, tangent, q, start, workspace,
-                                                                                   drive.local_tol)
-                return local if local is not None and local.converged else _solve_contact(model, tangent, q, start,
-                                                                                          workspace)
+            def load_solve(q, start):  # tight by semismooth Newton where it gets there, else as any step's
+                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton")
+                return local if local.converged else _solve_contact(model, tangent, q, start, workspace)
 
             local, q_scaled = drive.solve(load_solve, q_scaled, r, tangent.w_mean)
     if local_problem_hook is not None:
