@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import fe_contact.stepping.newton as newton
-from fe_contact import (Command, Friction, Material, Model, PadLoad, Release, SolverOptions, block_mesh, release_to_rest,
+from fe_contact import (Command, Friction, Gripper, Material, Model, PadLoad, Release, SolverOptions, block_mesh, release_to_rest,
                         run, step)
 from fe_contact.stepping.release import MAX_STEPS
 
@@ -147,3 +147,57 @@ def test_releases_that_never_ended_end(pad_mu, method):
     _, release, rest = release_to_rest(m, state, Release("lift", 16), pushes[-1])
     assert rest.settled, rest.reason
     assert sum(r.newton_iterations for r in release) <= 16 * 10
+
+
+# --- a compliant gripper with a frictional pad (issue 39 item 3): the plate's pose solved in the same loop
+
+def pad_block(gripper=None) -> Model:
+    """tests/test_pad.py's block, pad of the floor's friction."""
+    floor = (0.6, 0.2, math.radians(20.0))
+    return Model(block_mesh((0.04, 0.03, 0.02), (3, 2, 2)), Material(2e6, 0.45, density=1000.0), Friction(*floor),
+                 quadrature=2, pad=Friction(*floor), gripper=gripper or Gripper())
+
+
+PAD_LOADS = [Command(dz=-4e-4)] + [Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))] * 2
+
+
+def pushed_and_released(m):
+    state, pushes = run(m, PAD_LOADS)
+    assert all(r.converged for r in pushes), pushes[-1].message
+    _, release, rest = release_to_rest(m, state, Release("lift", 4), pushes[-1])
+    return pushes, release, rest
+
+
+def test_a_stiff_compliant_gripper_with_a_pad_is_the_rigid_pad():
+    """A gripper 1e9 x the block's shear stiffness: the loaded and the rest pose
+    are the rigid pad's to 1e-9 of the lag (measured 5.5e-10)."""
+    rigid = pushed_and_released(pad_block())
+    k = 1e9 * pad_block().shear_stiffness
+    stiff = pushed_and_released(pad_block(Gripper(k, k * (0.04**2 + 0.03**2) / 12)))
+    lag = np.linalg.norm(rigid[0][-1].lag)
+    assert stiff[2].settled, stiff[2].reason
+    for a, b in ((rigid[0][-1], stiff[0][-1]), (rigid[1][-1], stiff[1][-1])):
+        assert np.linalg.norm(a.lower_centroid - b.lower_centroid) <= 1e-9 * lag
+
+
+def test_a_soft_compliant_gripper_with_a_pad_balances_its_springs_and_settles():
+    """A gripper as stiff as the block in shear: the plate lags its command, the
+    springs carry what the pad's contacts apply (in-plane resultant, to 1e-8 of
+    it), and the release settles with N = W."""
+    k = pad_block().shear_stiffness
+    m = pad_block(Gripper(k, k * (0.04**2 + 0.03**2) / 12))
+    pushes, release, rest = pushed_and_released(m)
+    last = pushes[-1]
+    pad_force = last.upper_force[:2]
+    np.testing.assert_allclose(last.gripper_force[:2], pad_force, rtol=0, atol=1e-8 * np.linalg.norm(pad_force))
+    assert np.linalg.norm(last.plate[:2] - [1.2e-3, 4e-4]) > 1e-4  # the plate lags
+    assert rest.settled, rest.reason
+    assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+
+
+def test_a_compliant_pad_is_not_differentiated():
+    from fe_contact import rollout_derivatives
+
+    k = pad_block().shear_stiffness
+    with pytest.raises(ValueError, match="compliant gripper with a frictional pad"):
+        rollout_derivatives(pad_block(Gripper(k, k)), PAD_LOADS[:1])

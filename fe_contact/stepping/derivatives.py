@@ -37,7 +37,7 @@ put-down overshoots below ``h*`` and comes back, and the contacts that slip
 on the way keep it.  A frictional pad's release
 (:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
 differentiated the same way, each load step's height as the root of its
-load (:func:`_load_root`).  Open releases (``open > 0``) and a
+load (:func:`~fe_contact.stepping.release_derivatives.load_step_root`).  Open releases (``open > 0``) and a
 release with a retreat are not differentiated.
 """
 
@@ -52,7 +52,7 @@ from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .release import Release
 from .step import half_command, step
-from .release_derivatives import RecordingSequence, put_down_root, release_height_derivative
+from .release_derivatives import RecordingSequence, load_step_root, put_down_root, release_height_derivative
 from .predictor import commanded_pose
 from .sequence import StepSequence
 from .pad_sensitivity import PadLinearisation
@@ -148,6 +148,9 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
                                 or any(getattr(release, "away", (0.0, 0.0)))):
         raise ValueError(f"release must be a Release of mode 'lift' straight up (an open release, or a retreat "
                          f"away, is not differentiated), got {release!r}")
+    if model.pad is not None and not model.gripper.rigid:
+        raise ValueError("a compliant gripper with a frictional pad is not differentiated (its plate's pose, solved "
+                         "in the step's Newton loop, has no derivative here yet): use a rigid gripper")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -264,31 +267,13 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
     if k >= K and load:
         d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
             seeds[PARAMETERS.index("density")]
-        result = _load_root(result, load[0], d_target)
+        state_, d_st, outputs_, d_row = result
+        d_row, arrays = load_step_root(d_row, OUTPUTS.index("force_z"), load[0], d_target,
+                                       (d_st.displacement, d_st.pose, d_st.plate))
+        result = state_, StateDerivative(*arrays), outputs_, d_row
     if len(parts) == 1 and parts[0][1] is new_state:
         return result
     return new_state, result[1], result[2], result[3]
-
-
-def _load_root(result, load: float, d_load: np.ndarray):
-    """A pad's load step (:mod:`fe_contact.stepping.pad_load`) found its height
-    ``h`` where the pad's vertical force is ``F_z(h, p) = -P(p)`` (``P`` the
-    step's load, of the loaded load and the weight,
-    :func:`~fe_contact.stepping.release.pad_load_schedule`; ``d_load`` its
-    derivative (J,)): ``dh/dp = -(dF_z/dp + dP/dp) / (dF_z/dh)`` (implicit
-    function theorem, ``dF_z/dh`` the last column, the step's own height),
-    added to every derivative through its last column.  At ``P = 0`` the pad
-    is open and the block's state does not depend on ``h``."""
-    state, d_state, outputs, d_out = result
-    if load == 0:
-        return result
-    g = d_out[OUTPUTS.index("force_z")] + d_load
-    dh = -g / g[-1]
-    dh[-1] = 0.0
-    d_out = d_out + np.outer(d_out[:, -1], dh)
-    d_state = StateDerivative(*(x + np.outer(x[:, -1], dh) for x in (d_state.displacement, d_state.pose,
-                                                                       d_state.plate)))
-    return state, d_state, outputs, d_out
 
 
 def _whole_steps(model, parts):

@@ -208,8 +208,6 @@ class Model:
             raise ValueError(f"gripper must be a Gripper, got {type(self.gripper).__name__}")
         if self.pad is not None and not isinstance(self.pad, Friction):
             raise ValueError(f"pad must be a Friction or None (bonded), got {type(self.pad).__name__}")
-        if self.pad is not None and not self.gripper.rigid:
-            raise ValueError("a frictional pad is driven by a rigid gripper: gripper stiffness must be inf")
         if self.quadrature not in (2, 3):
             # one point per element leaves the hex8 hourglass modes without
             # stiffness: K_ff is singular and the flexibility matrix meaningless

@@ -338,7 +338,8 @@ FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
 
 
 def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace,
-                   tol: float | None = None, method: str | None = None):
+                   tol: float | None = None, method: str | None = None, W: np.ndarray | None = None,
+                   retry: bool = True):
     """The local contact problem ``u = W r + q`` of an iteration (scaled, see
     :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
     warm-started at ``r``; if that does not converge, retried with Newton
@@ -349,15 +350,17 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
     which one solved it; if none did, the one with the smallest residual is
     returned.  ``tol`` and ``method`` replace ``SolverOptions.local_tol`` and
     ``local_method`` (a pad's load equation needs its forces tighter than a
-    warm-started Uzawa gives them, :mod:`fe_contact.stepping.pad_load`)."""
+    warm-started Uzawa gives them, :mod:`fe_contact.stepping.pad_load`), ``W``
+    the tangent's (a compliant gripper's plate eliminated into it); without
+    ``retry`` the first method only."""
     opts = model.options
     best = None
     first = method or opts.local_method
-    attempts = ((first, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[first], r, True))
+    attempts = ((first, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[first], r, True))[:3 if retry else 1]
     for method, start, spd in attempts:
         # the tangent's W was checked when built, q above, r by the last solve
         local = solve_checked(
-            tangent.W_scaled, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
+            tangent.W_scaled if W is None else W, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
             opts.local_tol if tol is None else tol, opts.local_max_iter,
             assume_spd=spd,  # K_ff is SPD (with the upper face prescribed, or the springs)
             workspace=workspace if method == "newton" and spd else None,
@@ -393,13 +396,13 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         if drive is None:
             local = _solve_contact(model, tangent, q_scaled, r, workspace)
         else:  # the pad's height with its load equation (fe_contact.stepping.pad_load)
-            def load_solve(q, start):  # tight by semismooth Newton where it gets there, else as any step's
-                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton")
-                return local if local.converged else _solve_contact(model, tangent, q, start, workspace)
+            def load_solve(q, start, W=None):  # tight by semismooth Newton where it gets there, else as any step's
+                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton", W, retry=False)
+                return local if local.converged else _solve_contact(model, tangent, q, start, workspace, W=W)
 
-            local, q_scaled = drive.solve(load_solve, q_scaled, r, tangent.w_mean)
+            local, q_scaled, W_scaled = drive.solve(load_solve, q_scaled, r, tangent.w_mean, tangent.W_scaled)
     if local_problem_hook is not None:
-        local_problem_hook(tangent.W_scaled, q_scaled, local)
+        local_problem_hook(tangent.W_scaled if drive is None else W_scaled, q_scaled, local)
     if drive is not None and drive.failure:
         return local, None, (Status.CONTACT_NOT_CONVERGED, f"{drive.failure} at Newton iteration {it}")
     if not local.converged:

@@ -43,6 +43,7 @@ from .held import pad_loading, pad_motion
 from .measure import measure
 from .model import Model, State
 from .newton import equilibrium
+from .predictor import commanded_pose, predictor
 
 __all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step"]
 
@@ -56,16 +57,18 @@ MAX_LOAD_EVALUATIONS = 60
 
 
 class LoadDrive:
-    """The pad's height as an unknown of a step's Newton loop (module docstring).
+    """The pad's height (and a compliant gripper's plate pose) as unknowns of a
+    step's Newton loop (module docstring).
 
     Parameters
     ----------
     model : Model
         With a frictional pad.
     state : State
-        The step's start (its pad pose ``t_0``, rotation kept).
-    command : PadLoad
-        The load ``P`` at the end of the step and the path's retreat.
+        The step's start (its pad pose: the plate's ``(x, y, theta)`` and the height).
+    command : PadLoad or Command
+        The load ``P`` at the end of the step and the path's retreat; or, for a
+        compliant gripper, a commanded pose (the height given, no load equation).
     scale : float
         Load scale, N (the loaded pad load, or the weight): the tolerance's unit.
     slope : float
@@ -75,6 +78,9 @@ class LoadDrive:
     ----------
     height : float
         The current iterate ``h_i`` of the pad's height (cumulative ``t_z``), m.
+    plate : ndarray, shape (3,)
+        The current iterate of the plate's in-plane pose ``(x, y, theta)``, m, rad
+        (the commanded one for a rigid gripper).
     load_residual : float
         ``|g|`` after the last local solve, N.
     evaluations : int
@@ -83,38 +89,93 @@ class LoadDrive:
         Why the last load equation was not met ("" if it was).
     """
 
-    def __init__(self, model: Model, state: State, command: PadLoad, scale: float, slope: float):
-        self.model, self.state, self.target = model, state, command.load
-        self.path = np.array([*command.retreat, 1.0])
+    def __init__(self, model: Model, state: State, command, scale: float, slope: float):
+        self.model, self.state = model, state
+        self.k = None if model.gripper.rigid else np.asarray(model.gripper.stiffness, dtype=float)
         self.start = float(state.upper_translation[2])
+        # the commanded translation at height h: base + path (h - start)
+        if isinstance(command, PadLoad):
+            self.target, self.path = command.load, np.array([*command.retreat, 1.0])
+            self.base, self.turn = np.array(state.upper_translation, dtype=float), float(state.upper_rotation)
+            self.plate = np.array(state.plate, dtype=float)
+            self.height = self.start  # the first iterate: the step's start, whose local problem is solved
+        else:  # a commanded pose of a compliant gripper's plate, its height given
+            translation, self.turn = commanded_pose(state, command)
+            self.target, self.path = None, np.array([0.0, 0.0, 1.0])
+            self.base = np.array([translation[0], translation[1], self.start])
+            self.plate = np.array(state.plate) + [command.dx, command.dy, command.dtheta]
+            self.height = float(translation[2])
+        if self.k is None:
+            self.plate = self.commanded()
         self.tol = LOAD_TOL * scale
         self.local_tol = min(model.options.local_tol, LOCAL_TOL)
         self.slope = slope
         n_lower = model.n_lower
         self.pad = np.arange(model.n_contacts) >= n_lower
-        b = np.zeros((model.n_contacts, 3))
-        b[n_lower:] = -model.contacts.frames[n_lower:] @ self.path
-        self.b = b
-        self.height = self.start  # the first iterate: the step's start, whose local problem is solved
-        self.load_residual, self.evaluations, self.failure = math.inf, 0, ""
+        # the pad's start pose: the plate's, at the start height
+        self.origin = replace(state, upper_translation=np.array([*state.plate[:2], self.start]),
+                              upper_rotation=float(state.plate[2]))
+        self.load_residual, self.evaluations, self.failure, self.noise = math.inf, 0, "", 0.0
+
+    def commanded(self) -> np.ndarray:
+        """The commanded plate pose ``c = (x, y, theta)`` at the current height (on the release's path)."""
+        t = self.base + self.path * (self.height - self.start)
+        return np.array([t[0], t[1], self.turn])
 
     def pose(self) -> tuple[np.ndarray, float]:
-        """The pad's pose at the current height: translation (3,), m, and rotation, rad."""
-        return self.state.upper_translation + self.path * (self.height - self.start), self.state.upper_rotation
+        """The pad's pose: translation (3,), m (the plate's x, y at the current height), and rotation, rad."""
+        return np.array([self.plate[0], self.plate[1], self.height]), float(self.plate[2])
+
+    def commanded_translation(self) -> np.ndarray:
+        """The commanded translation (3,) at the current height, m."""
+        return self.base + self.path * (self.height - self.start)
 
     def kinematics(self) -> tuple[np.ndarray, np.ndarray]:
         """The pad's shift (3,), m, and its motion over the step at each contact (n_contacts, 3), m."""
         translation, rotation = self.pose()
-        return translation, pad_motion(self.model, self.state, translation, rotation)
+        return translation, pad_motion(self.model, self.origin, translation, rotation)
 
-    def solve(self, local_solve, q: np.ndarray, r: np.ndarray, w_mean: float):
-        """The local problem of a Newton iteration with the load equation
-        (module docstring): ``local_solve(q, r_start)`` solves ``u = W r + q``
+    def _plate_columns(self) -> np.ndarray:
+        """``B = du/dp`` (n_contacts, 3, 3) of the local kinematics by the plate's
+        pose ``p = (x, y, theta)`` at the current iterate: ``-T dm/dp``, ``dm/dp``
+        the pad point's motion (``e_x``, ``e_y``, and ``R'(theta - theta_0) rel``)."""
+        model, n_lower = self.model, self.model.n_lower
+        upper = model.contacts.nodes[n_lower:]
+        rel = (model.mesh.nodes[upper] + self.state.displacement[upper])[:, :2] - model.upper_centre[:2] \
+            - self.state.plate[:2]
+        turn = self.plate[2] - self.state.plate[2]
+        c, s = math.cos(turn), math.sin(turn)
+        dm = np.zeros((upper.size, 3, 3))
+        dm[:, 0, 0] = dm[:, 1, 1] = 1.0
+        dm[:, :2, 2] = rel @ np.array([[-s, -c], [c, -s]]).T
+        B = np.zeros((model.n_contacts, 3, 3))
+        B[n_lower:] = -np.einsum("cij,cjk->cik", model.contacts.frames[n_lower:], dm)
+        return B
+
+    def solve(self, local_solve, q: np.ndarray, r: np.ndarray, w_mean: float, W: np.ndarray):
+        """The local problem of a Newton iteration with the pad's unknowns
+        (module docstring): ``local_solve(q, r_start, W)`` solves ``u = W r + q``
         (scaled by ``w_mean``, m/N, as in :mod:`fe_contact.stepping.newton`).
-        Returns the :class:`~fe_contact.contact.local_solver.LocalSolution` at
-        the height found (its ``converged`` False if the load equation was not
-        met) and the ``q`` it solved; sets :attr:`height`."""
-        b = self.b / w_mean
+        A compliant gripper's plate is eliminated, ``p = c + k^-1 B^T r``:
+        ``W + B k^-1 B^T``, ``q + B (c - p_i)``.  Returns the
+        :class:`~fe_contact.contact.local_solver.LocalSolution` (its
+        ``converged`` False if the load equation was not met), the ``q`` and
+        the ``W`` it solved; sets :attr:`height` and :attr:`plate`."""
+        B = self._plate_columns().reshape(-1, 3)
+        b = (-self.model.contacts.frames[:, :, 2] * self.pad[:, None]).ravel() + B @ [*self.path[:2], 0.0]
+        if self.k is not None:
+            W = W + (B / self.k) @ B.T / w_mean
+            q = q + (B @ (self.commanded() - self.plate)).reshape(-1, 3) / w_mean
+        b = b.reshape(-1, 3) / w_mean
+        solve = lambda q_, start_: local_solve(q_, start_, W if self.k is not None else None)  # noqa: E731
+        if self.target is None:
+            local, q = self._done(solve(q, r), 0.0, 0.0, q, b, B)
+            return local, q, W
+        local, q_solved = self._solve_load(solve, q, r, b, B)
+        return local, q_solved, W
+
+    def _solve_load(self, local_solve, q, r, b, B):
+        """The load equation's root in the height (module docstring)."""
         start, first = r, self.evaluations
         self.cap = first + MAX_LOAD_EVALUATIONS
 
@@ -128,14 +189,13 @@ class LoadDrive:
             return local, float(local.r[self.pad, 0].sum()) - self.target
 
         self.noise = 0.0
-
         local, g = at(0.0)
         if not local.converged or abs(g) <= self.tolerance:
-            return self._done(local, g, 0.0, q, b)
+            return self._done(local, g, 0.0, q, b, B)
         best = self._bracket(at, local, g)
         if best is None:
-            return self._done(local, g, 0.0, q, b, "no height found where the pad carries the load")
-        return self._done(*best, q, b)
+            return self._done(local, g, 0.0, q, b, B, "no height found where the pad carries the load")
+        return self._done(*best, q, b, B)
 
     def _bracket(self, at, local, g):
         """``(local, g, dh)`` at a root of ``g`` (or the best point when the
@@ -165,11 +225,13 @@ class LoadDrive:
 
     def _illinois(self, at, lo, hi):
         """Regula falsi between ``lo`` and ``hi`` with the Illinois halving of a
-        kept end's value, until ``|g| <= tol`` or the bracket is rounding."""
+        kept end's value, and a bisection when two steps did not halve the
+        bracket (a flat end, the pad open: regula falsi creeps there), until
+        ``|g| <= tol`` or the bracket's values differ by noise."""
         (a, ga, la), (c, gc, lc) = lo, hi
-        side = 0
+        side, widths = 0, [abs(c - a)] * 2
         while self.evaluations < self.cap:
-            x = a - ga * (c - a) / (gc - ga)
+            x = 0.5 * (a + c) if abs(c - a) > 0.5 * widths[-2] else a - ga * (c - a) / (gc - ga)
             local, g = at(x)
             if not local.converged:
                 break
@@ -184,6 +246,7 @@ class LoadDrive:
                 c, gc, lc = x, g, local
                 ga = ga / 2 if side == -1 else ga
                 side = -1
+            widths.append(abs(c - a))
         best = min((ga, la, a), (gc, lc, c), key=lambda p: abs(p[0]))
         return best[1], best[0], best[2]
 
@@ -197,9 +260,14 @@ class LoadDrive:
         if c != a and (ga - gc) / (c - a) > 0:
             self.slope = (ga - gc) / (c - a)
 
-    def _done(self, local, g, dh, q, b, failure=""):
-        """Move to the height found; a local solve that failed is the Newton loop's to report."""
+    def _done(self, local, g, dh, q, b, B, failure=""):
+        """Move to the height found and the plate's pose ``c + k^-1 B^T r``; a
+        local solve that failed is the Newton loop's to report."""
         self.height += dh
+        if self.k is not None and local.converged:
+            self.plate = self.commanded() + (B.T @ local.r.ravel()) / self.k
+        elif self.k is None:
+            self.plate = self.commanded()
         self.load_residual = abs(g)
         self.failure = ""
         if local.converged and abs(g) > self.tolerance:
@@ -209,21 +277,26 @@ class LoadDrive:
         return local, q + b * dh
 
 
-def load_step(model: Model, state: State, command: PadLoad, t0: float, local_problem_hook=None):
-    """The Newton loop of a pad load step from ``state`` (the block where it
-    is, the pad's height from the block's axial stiffness ``E A / H``) and its
-    report, whose ``command`` is the pad's motion the step found.  Returns
-    ``(eq, report, translation, rotation)``."""
+def load_step(model: Model, state: State, command, t0: float, local_problem_hook=None):
+    """The Newton loop of a step with the pad's unknowns (a :class:`PadLoad`, or
+    a compliant gripper's commanded pose) from ``state`` (the block where it
+    is) and its report, whose ``command`` is the commanded motion the step
+    found, ``gripper_force`` the spring force ``k (c - p)`` of a compliant
+    gripper and ``plate`` its pose.  Returns ``(eq, report, translation,
+    rotation, plate)``, the commanded pose and the plate's."""
     lx, ly, lz = model.mesh.size
     current = float(state.reaction[model.n_lower:, 0].sum())
-    scale = max(command.load, current, model.weight)
-    drive = LoadDrive(model, state, command, scale, model.material.young * lx * ly / lz)
+    target = command.load if isinstance(command, PadLoad) else 0.0
+    drive = LoadDrive(model, state, command, max(target, current, model.weight), model.material.young * lx * ly / lz)
     loading = pad_loading(model, state)
-    eq = equilibrium(model, state, np.array(state.displacement, dtype=float), local_problem_hook, False, loading,
-                     drive)
-    translation, rotation = drive.pose()
-    taken = Command(*(translation - state.upper_translation))
-    return eq, measure(model, state, taken, eq, t0, loading), translation, rotation
+    U = np.array(state.displacement, dtype=float) if isinstance(command, PadLoad) else predictor(model, state, command)
+    eq = equilibrium(model, state, U, local_problem_hook, False, loading, drive)
+    translation, c = drive.commanded_translation(), drive.commanded()
+    taken = Command(*(translation - state.upper_translation), c[2] - state.upper_rotation) \
+        if isinstance(command, PadLoad) else command
+    extra = None if drive.k is None else {"gripper_force": drive.k * (c - drive.plate), "plate": drive.plate.copy()}
+    report = measure(model, state, taken, eq, t0, loading, extra)
+    return eq, report, translation, float(c[2]), drive.plate.copy()
 
 
 def _load_noise(local, q: np.ndarray, pad: np.ndarray, local_tol: float) -> float:

@@ -86,7 +86,10 @@ class Release:
     mode : {"lift"}
         The one release: the gripper rises (see the module docstring).
     steps : int
-        Increments of the release (>= 1).
+        Increments of the release, in [1, MAX_STEPS]: a bonded pad's lift
+        increments of ``d / steps``; a frictional pad's load steps
+        (:func:`pad_load_schedule`), which set the rest pose's accuracy (first
+        order: docs/release.md) and the release's cost (``steps`` Newton loops).
     max_steps : int
         Limit on the release's steps in all (ramp, extra lift, put-down).
     height : float

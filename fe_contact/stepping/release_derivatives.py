@@ -10,7 +10,7 @@ import numpy as np
 from .model import Model, State
 from .sequence import StepSequence
 
-__all__ = ["RecordingSequence", "put_down_root", "release_height_derivative"]
+__all__ = ["RecordingSequence", "load_step_root", "put_down_root", "release_height_derivative"]
 
 
 class RecordingSequence(StepSequence):
@@ -62,7 +62,7 @@ def release_height_derivative(model: Model, schedule, d_current: np.ndarray, pat
     (:func:`~fe_contact.stepping.release_path.put_down_target`, a function of
     the put-down's points, plate height and vertical force, of the weight ``W
     = rho g V`` and of the column's stiffness ``k = E A / H``); a pad's load
-    step's height is a root instead (:func:`fe_contact.stepping.derivatives._load_root`).  ``path`` holds ``(d_h, d_F_z)`` of the release's start
+    step's height is a root instead (:func:`load_step_root`).  ``path`` holds ``(d_h, d_F_z)`` of the release's start
     (the loaded step) and of each release step so far.  ``d_young``, ``d_density``
     (J,) are the inputs' derivatives of ``E``, ``rho``.  A put-down's last
     height is then replaced by the root (:func:`put_down_root`).
@@ -104,3 +104,22 @@ def put_down_root(schedule, d_rest: np.ndarray, force_z: int, d_state: tuple) ->
     dh[-1] = 0.0
     d_rest += np.outer(d_rest[:, -1], dh)
     return tuple(x + np.outer(x[:, -1], dh) for x in d_state)
+
+
+def load_step_root(d_out: np.ndarray, force_z: int, load: float, d_load: np.ndarray, d_state: tuple) -> tuple:
+    """A pad's load step (:mod:`fe_contact.stepping.pad_load`) found its height
+    ``h`` where the pad's vertical force is ``F_z(h, p) = -P(p)`` (``P`` the
+    step's load, of the loaded load and the weight,
+    :func:`~fe_contact.stepping.release.pad_load_schedule`; ``d_load`` its
+    derivative (J,)): ``dh/dp = -(dF_z/dp + dP/dp) / (dF_z/dh)`` (implicit
+    function theorem, ``dF_z/dh`` the last column, the step's own height),
+    added to every derivative through its last column.  ``d_out`` (9, J) the
+    step's output derivatives (row ``force_z`` the pad's vertical force),
+    ``d_state`` the state's (arrays (., J)); returns both corrected.  At ``P =
+    0`` the pad is open and the block's state does not depend on ``h``."""
+    if load == 0:
+        return d_out, d_state
+    g = d_out[force_z] + d_load
+    dh = -g / g[-1]
+    dh[-1] = 0.0
+    return d_out + np.outer(d_out[:, -1], dh), tuple(x + np.outer(x[:, -1], dh) for x in d_state)

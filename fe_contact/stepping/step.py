@@ -74,10 +74,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     """
     _check_arguments(model, state, command)
     t0 = time.perf_counter()
+    if model.pad is not None:  # a pose or a load (PadLoad); a compliant gripper's plate solved in the loop
+        return _split_step(model, state, command, t0, local_problem_hook, 0)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
-    if model.pad is not None:  # a pose or a load (PadLoad)
-        return _split_step(model, state, command, t0, local_problem_hook, 0)
     translation, rotation = commanded_pose(state, command)
     eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
     if not report.converged:
@@ -107,11 +107,12 @@ MAX_SPLITS = 4
 
 def _pad_step(model: Model, state: State, command, t0: float, hook):
     """One step with a frictional pad: a commanded pose, or a load (:class:`PadLoad`,
-    the pad's height solved for).  Returns ``(eq, report, translation, rotation)``."""
-    if isinstance(command, PadLoad):
+    the pad's height solved for; a compliant gripper's plate pose solved for).
+    Returns ``(eq, report, translation, rotation, plate)`` (plate None: the commanded one)."""
+    if isinstance(command, PadLoad) or not model.gripper.rigid:
         return load_step(model, state, command, t0, hook)
     translation, rotation = commanded_pose(state, command)
-    return (*held_step(model, state, command, translation, rotation, t0, hook), translation, rotation)
+    return (*held_step(model, state, command, translation, rotation, t0, hook), translation, rotation, None)
 
 
 def _halves(state: State, command):
@@ -131,9 +132,9 @@ def _split_step(model: Model, state: State, command, t0: float, hook, depth: int
     half the motion is a finer path of the same friction law.  The report of a
     split step is its last part's, with the whole motion, the iterations of
     all parts and a message saying so."""
-    eq, report, translation, rotation = _pad_step(model, state, command, t0, hook)
+    eq, report, translation, rotation, plate = _pad_step(model, state, command, t0, hook)
     if report.converged:
-        return next_state(state, eq, translation, rotation, report), report
+        return next_state(state, eq, translation, rotation, report, plate=plate), report
     if depth >= MAX_SPLITS:
         return state, report
     first_part, second_part = _halves(state, command)
