@@ -54,6 +54,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, nargs="+", default=[4, 16])
     parser.add_argument("--ratios", type=float, nargs="+", default=RATIOS)
+    parser.add_argument("--name", default="release_cost", help="results file name (benchmarks/results/NAME.json)")
     args = parser.parse_args()
     rows = []
     print(f"{'pad mu_x':>9} {'steps':>5} {'push it':>7} {'rel it':>6} {'ratio':>6} {'status':>11} {'N/W-1':>9} "
@@ -66,10 +67,12 @@ def main() -> None:
             print(f"{pad.mu_x:9.4g} {steps:5d} {row['push_newton']:7d} {row['release_newton']:6d} {row['ratio']:6.2f} "
                   f"{row['status']:>11} {row['normal_over_weight_minus_1']:9.1e} {row['push_s']:6.1f} "
                   f"{row['release_s']:6.1f}", flush=True)
-    worst = {s: max(r["ratio"] for r in rows if r["steps"] == s) for s in args.steps}
+            worst = {s: max(r["ratio"] for r in rows if r["steps"] == s) for s in args.steps if
+                     any(r["steps"] == s for r in rows)}
+            path = write_results(args.name, {"floor": FLOOR[:2], "floor_angle_deg": 20.0, "rows": rows,
+                                             "worst_ratio": {str(k): v for k, v in worst.items()}})
     print("worst release / push Newton iterations:", worst)
-    print("wrote", write_results("release_cost", {"floor": FLOOR[:2], "floor_angle_deg": 20.0, "rows": rows,
-                                                  "worst_ratio": {str(k): v for k, v in worst.items()}}))
+    print("wrote", path)
 
 
 if __name__ == "__main__":

@@ -396,9 +396,10 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         if drive is None:
             local = _solve_contact(model, tangent, q_scaled, r, workspace)
         else:  # the pad's height with its load equation (fe_contact.stepping.pad_load)
-            def load_solve(q, start, W=None):  # tight by semismooth Newton where it gets there, else as any step's
+            def load_solve(q, start, W=None, full=True):  # tight by semismooth Newton, else (full) as any step's
                 local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton", W, retry=False)
-                return local if local.converged else _solve_contact(model, tangent, q, start, workspace, W=W)
+                return local if local.converged or not full else _solve_contact(model, tangent, q, start, workspace,
+                                                                                W=W)
 
             local, q_scaled, W_scaled = drive.solve(load_solve, q_scaled, r, tangent.w_mean, tangent.W_scaled)
     if local_problem_hook is not None:

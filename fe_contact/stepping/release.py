@@ -164,6 +164,7 @@ class ReleaseSchedule:
         self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
         self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
         self.taken = 0
+        self.load_step = 0  # a frictional pad's load steps taken
         self.height_partials: dict = {}  # the last command's height: its partial derivatives (put_down_target)
 
     @property
@@ -226,10 +227,14 @@ class ReleaseSchedule:
         of :func:`pad_load_schedule` (:class:`PadLoad`, its height solved for),
         ``k = 1 .. steps``; then, the pad open, the rise and one settle step
         (:meth:`_rise`)."""
-        if j < self.release.steps and self.loaded_pad > 0:
-            load, d_loaded, d_weight = pad_load_schedule(self.loaded_pad, self.weight, j + 1, self.release.steps)
-            self.height_partials = {"load": (load, d_loaded, d_weight)}  # the height where the pad carries it
-            return PadLoad(load, tuple(self.retreat))
+        current = self.loaded_pad if report is None else -float(report.upper_force[2])
+        while self.load_step < self.release.steps and self.loaded_pad > 0:
+            self.load_step += 1
+            load, d_loaded, d_weight = pad_load_schedule(self.loaded_pad, self.weight, self.load_step,
+                                                         self.release.steps)
+            if load < current or load == 0:  # a step that ended past a jump of the load skips the loads above
+                self.height_partials = {"load": (load, d_loaded, d_weight)}  # the height where the pad carries it
+                return PadLoad(load, tuple(self.retreat))
         return self._rise(state)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
