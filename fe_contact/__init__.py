@@ -56,7 +56,8 @@ from .stepping.model import (
 )
 from .stepping.model import LOCAL_METHODS
 from .stepping.pose import ZERO_MOTION, face_centroid_displacement, planar_yaw, twist_angle, wrap_angle
-from .stepping.release import Release, ReleaseSchedule, Rest, rest_check
+from .stepping.command import PadLoad
+from .stepping.release import ERROR_TOL_REMOVED, Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
 from .stepping.derivatives import (PARAMETERS, RolloutDerivatives, applicable_parameters, check_derivatives,
                                    rollout_derivatives)
@@ -102,6 +103,8 @@ __all__ = [
     "project_elliptic_cone",
     "Release",
     "release_to_rest",
+    "PadLoad",
+    "ERROR_TOL_REMOVED",
     "ReleaseSchedule",
     "Rest",
     "rest_check",

@@ -17,7 +17,7 @@ MIN_TOLERANCE = 1e-15
 below double-precision rounding (2.2e-16) cannot be reached, so a smaller one only
 turns the iteration limit into the run time."""
 MAX_NEWTON_ITER = 1_000
-"""``solver.newton_max_iter`` (default 30)."""
+"""``solver.newton_max_iter`` (default 100)."""
 MAX_LOCAL_ITER = 100_000
 """``solver.local_max_iter`` (defaults 100 Newton, 20000 Uzawa)."""
 MAX_ACCELERATION = 50

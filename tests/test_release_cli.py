@@ -51,12 +51,12 @@ def simulate(tmp_path, text, name="s"):
 
 
 def test_scenario_tables_round_trip(tmp_path):
-    text = RUBBER.replace("steps = 4", "steps = 4\nheight = 1e-3\naway = [2e-3, -1e-3]\nerror_tol = 0.05") + \
+    text = RUBBER.replace("steps = 4", "steps = 4\nheight = 1e-3\naway = [2e-3, -1e-3]") + \
         "[gripper]\nstiffness_xy = 4e4\nstiffness_yaw = 5.0\n"
     (tmp_path / "s.toml").write_text(text)
     s = parse_scenario(read_toml(tmp_path / "s.toml"))
     assert s.density == 1000.0 and s.release.mode == "lift" and s.release.steps == 4
-    assert s.release.away == (2e-3, -1e-3) and s.release.height == 1e-3 and s.release.error_tol == 0.05
+    assert s.release.away == (2e-3, -1e-3) and s.release.height == 1e-3
     assert s.gripper.stiffness_xy == 4e4
     assert parse_scenario(s.to_dict()) == s
     plain = parse_scenario(read_toml(tmp_path / "s.toml") | {"release": {"mode": "lift"}})
@@ -67,7 +67,9 @@ BAD = {
     "open (removed)": (('mode = "lift"', 'mode = "open"'), "release.mode"),
     "away not a pair": (("steps = 4", "steps = 4\naway = [1e-3]"), "release.away"),
     "away not a number": (("steps = 4", "steps = 4\naway = [1e-3, \"x\"]"), "release.away[1]"),
-    "error_tol of 1": (("steps = 4", "steps = 4\nerror_tol = 1.0"), "release.error_tol"),
+    "error_tol (removed by issue 39)": (("steps = 4", "steps = 4\nerror_tol = 1e-2"), "release.error_tol"),
+    "error_tol tiny (issue 43)": (("steps = 4", "steps = 4\nerror_tol = 1e-9"), "release.error_tol"),
+    "steps past the bound": (("steps = 4", "steps = 1000000"), "release.steps"),
     "negative density": (("density = 1000.0", "density = -1.0"), "material.density"),
     "negative stiffness": (("[release]", "[gripper]\nstiffness_xy = -1.0\nstiffness_yaw = 1.0\n[release]"),
                            "gripper.stiffness_xy"),

@@ -43,3 +43,37 @@ class Command:
     def moves(self) -> bool:
         """The command moves the gripper."""
         return any((self.dx, self.dy, self.dz, self.dtheta))
+
+
+@dataclass(frozen=True)
+class PadLoad:
+    """One load step of a frictional pad's release by load control (issue 39):
+    the pad's total normal load at the end of the step is ``load`` (N, >= 0);
+    its height is an unknown of the step, solved with the displacements and
+    the contact forces (:mod:`fe_contact.stepping.pad_load`).
+
+    Parameters
+    ----------
+    load : float
+        Sum of the pad's normal contact forces at the end of the step, N.
+    retreat : (float, float)
+        Horizontal motion of the pad per unit of its rise, m/m (the release's
+        path, :class:`fe_contact.stepping.release.Release`).
+    """
+
+    load: float
+    retreat: tuple = (0.0, 0.0)
+
+    def __post_init__(self):
+        load = _finite("load", self.load)
+        if load < 0:
+            raise ValueError(f"load must be >= 0 N, got {load}")
+        object.__setattr__(self, "load", load)
+        if len(self.retreat) != 2:
+            raise ValueError(f"retreat must be a pair (m/m), got {self.retreat!r}")
+        object.__setattr__(self, "retreat", tuple(_finite(f"retreat[{i}]", v) for i, v in enumerate(self.retreat)))
+
+    @property
+    def moves(self) -> bool:
+        """A load step moves the pad (its height is solved for)."""
+        return True

@@ -36,9 +36,8 @@ from one more input column (the step's own height).  The path matters: the
 put-down overshoots below ``h*`` and comes back, and the contacts that slip
 on the way keep it.  A frictional pad's release
 (:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
-differentiated the same way, its lift's heights by
-:func:`~fe_contact.stepping.release_path.pad_lift_rise`, each step through
-the parts its error control kept.  Open releases (``open > 0``) and a
+differentiated the same way, each load step's height as the root of its
+load (:func:`~fe_contact.stepping.release_derivatives.load_step_root`).  Open releases (``open > 0``) and a
 release with a retreat are not differentiated.
 """
 
@@ -52,10 +51,9 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .release import Release
-from .step import step
-from .release_derivatives import RecordingSequence, put_down_root, release_height_derivative
+from .step import half_command, step
+from .release_derivatives import RecordingSequence, load_step_root, put_down_root, release_height_derivative
 from .predictor import commanded_pose
-from .adaptive import half_command
 from .sequence import StepSequence
 from .pad_sensitivity import PadLinearisation
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
@@ -150,6 +148,9 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
                                 or any(getattr(release, "away", (0.0, 0.0)))):
         raise ValueError(f"release must be a Release of mode 'lift' straight up (an open release, or a retreat "
                          f"away, is not differentiated), got {release!r}")
+    if model.pad is not None and not model.gripper.rigid:
+        raise ValueError("a compliant gripper with a frictional pad is not differentiated (its plate's pose, solved "
+                         "in the step's Newton loop, has no derivative here yet): use a rigid gripper")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -241,9 +242,12 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
         parts = _whole_steps(model, [(state, new_state, report)])
         sequence.taken = []
     else:  # a release step: its height as the schedule chose it; the last column is its own
-        d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
-                                               seeds[PARAMETERS.index("young")], seeds[PARAMETERS.index("density")])
-        d_whole[2] -= d_state.pose[2]
+        load = sequence.schedule.height_partials.get("load")  # a pad's load step: its height found with its load
+        if load is None:
+            d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
+                                                   seeds[PARAMETERS.index("young")],
+                                                   seeds[PARAMETERS.index("density")])
+            d_whole[2] -= d_state.pose[2]
         d_whole[2, -1] = 1.0
         for name in ("displacement", "pose", "plate"):
             getattr(d_state, name)[:, -1] = 0.0
@@ -260,9 +264,16 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
+    if k >= K and load:
+        d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
+            seeds[PARAMETERS.index("density")]
+        state_, d_st, outputs_, d_row = result
+        d_row, arrays = load_step_root(d_row, OUTPUTS.index("force_z"), load[0], d_target,
+                                       (d_st.displacement, d_st.pose, d_st.plate))
+        result = state_, StateDerivative(*arrays), outputs_, d_row
     if len(parts) == 1 and parts[0][1] is new_state:
         return result
-    return new_state, d_state, result[2], result[3]
+    return new_state, result[1], result[2], result[3]
 
 
 def _whole_steps(model, parts):

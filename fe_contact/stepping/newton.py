@@ -18,7 +18,9 @@ displacements and the only Newton nonlinearity is geometric.
 
 The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
 of the upper-face and contact force norms and the command's own out-of-balance
-force.
+force, or where rounding stops it (the last correction at rounding level of
+``U``); it says "stalled at r" when the force no longer falls, and gives up
+at ``newton_max_iter`` (:func:`_verdict`).
 
 With the tangent kept (modified Newton) the iterates are accelerated by
 Anderson's mixing (``SolverOptions.acceleration``,
@@ -105,7 +107,8 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     ``consume`` it is released at a refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
     (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
     ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
-    ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`."""
+    ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`, or a
+    :class:`~fe_contact.stepping.pad_load.LoadDrive` (the pad's height solved with its load)."""
     opts = model.options
     tangent = state.tangent.value if model.reuses_tangent else None
     if tangent is not None and tangent.n_free != model.free_dofs.size:
@@ -116,6 +119,7 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     timings, logs = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0), []
     status, message, prev_res, rel_res = Status.NEWTON_NOT_CONVERGED, "", math.inf, math.inf
     n_tangents, at_start, scale0, f_int, min_det = 0, False, 0.0, None, math.nan
+    history, last_step = [], math.inf  # plain iterates' relative out-of-balance forces; the last correction, m
     for it in range(opts.newton_max_iter + 1):
         need_tangent = tangent is None or not model.reuses_tangent
         mixed = anderson is not None and anderson.mixed  # no convergence test at a mix
@@ -134,12 +138,9 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
         if failure is not None:
             status, message = failure
             break
-        if it > 0 and not mixed and rel_res <= opts.newton_tol:
-            status = Status.CONVERGED
-            break
-        if it == opts.newton_max_iter:
-            message = (f"Newton loop did not converge in {opts.newton_max_iter} iterations "
-                       f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})")
+        verdict = None if mixed else _verdict(opts, it, rel_res, history, last_step, float(np.abs(U).max()))
+        if verdict is not None:
+            status, message = verdict
             break
         need_tangent = need_tangent or refresh_due(tangent, at_start, it, rel_res, prev_res, opts, mixed)
         # a plain iterate next if the last contraction says it passes the test
@@ -169,12 +170,49 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
                 break
             U, r = anderson.fall_back()  # the contact solve failed from a mix, not from the plain iterate
         else:
+            last_step = float(np.abs(dU_free).max()) if dU_free.size else 0.0
             U, r = _next_iterate(model, anderson, U, R, f_contact, dU_free, local.r, plain)
     status, message = _named_cause(model, state, U, status, message)
     cached = None if not model.reuses_tangent or tangent is None else tangent.with_workspace(
         workspace, None if anderson is None else anderson.pairs)
     return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
                        cached, timings)
+
+
+STALL_WINDOW = 8
+"""Newton iterations in a row that do not lower the best out-of-balance force by STALL_RATIO: the loop has stalled."""
+STALL_RATIO = 0.9
+ROUNDING_STEP = 64
+"""A correction that moves no dof by more than this many ulps of the iterate (``eps max |U|``) leaves it a fixed
+point to rounding: its out-of-balance force is what rounding allows at that load and mesh."""
+
+
+def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_size: float):
+    """The end of the Newton loop at a plain iterate, or None to go on.
+
+    Converged when the relative out-of-balance force is at most ``newton_tol``,
+    or when the last correction was at rounding level (``ROUNDING_STEP eps
+    max |U|``, m): no iteration can improve the iterate, its force is what
+    rounding allows (a fixed tolerance alone fails converged steps of a fine
+    mesh, issue 39).  Stalled (not converged, "stalled at r") when the last
+    ``STALL_WINDOW`` iterations did not lower the best force by ``STALL_RATIO``;
+    not converged at ``newton_max_iter``.  ``history`` gains ``rel_res``.
+    """
+    if it == 0:  # the start: the last step's equilibrium under this step's command
+        return None
+    history.append(rel_res)
+    if rel_res <= opts.newton_tol:
+        return Status.CONVERGED, ""
+    if last_step <= ROUNDING_STEP * np.finfo(float).eps * u_size:
+        return Status.CONVERGED, (f"converged to rounding (relative out-of-balance force {rel_res:.3g}, the last "
+                                  f"correction {last_step:.3g} m at rounding level)")
+    if len(history) > STALL_WINDOW and min(history[-STALL_WINDOW:]) > STALL_RATIO * min(history[:-STALL_WINDOW]):
+        return Status.NEWTON_NOT_CONVERGED, (f"Newton loop stalled at r = {rel_res:.3g} (> newton_tol "
+                                             f"{opts.newton_tol:g}): no fall over {STALL_WINDOW} iterations")
+    if it == opts.newton_max_iter:
+        return Status.NEWTON_NOT_CONVERGED, (f"Newton loop did not converge in {opts.newton_max_iter} iterations "
+                                             f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})")
+    return None
 
 
 def _new_tangent(model: Model, state: State, U: np.ndarray, handed: list, consume: bool, it: int, timings: dict,
@@ -299,7 +337,9 @@ FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
 """The local method a contact solve retries with when the chosen one does not converge."""
 
 
-def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace):
+def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace,
+                   tol: float | None = None, method: str | None = None, W: np.ndarray | None = None,
+                   retry: bool = True):
     """The local contact problem ``u = W r + q`` of an iteration (scaled, see
     :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
     warm-started at ``r``; if that does not converge, retried with Newton
@@ -308,15 +348,20 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
     :data:`FALLBACK` of the method warm-started (semismooth Newton and the
     paper's Uzawa fail on different problems).  The solution's ``method`` says
     which one solved it; if none did, the one with the smallest residual is
-    returned."""
+    returned.  ``tol`` and ``method`` replace ``SolverOptions.local_tol`` and
+    ``local_method`` (a pad's load equation needs its forces tighter than a
+    warm-started Uzawa gives them, :mod:`fe_contact.stepping.pad_load`), ``W``
+    the tangent's (a compliant gripper's plate eliminated into it); without
+    ``retry`` the first method only."""
     opts = model.options
     best = None
-    attempts = ((opts.local_method, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[opts.local_method], r, True))
+    first = method or opts.local_method
+    attempts = ((first, r, True), ("newton", np.zeros_like(r), False), (FALLBACK[first], r, True))[:3 if retry else 1]
     for method, start, spd in attempts:
         # the tangent's W was checked when built, q above, r by the last solve
         local = solve_checked(
-            tangent.W_scaled, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
-            opts.local_tol, opts.local_max_iter,
+            tangent.W_scaled if W is None else W, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
+            opts.local_tol if tol is None else tol, opts.local_max_iter,
             assume_spd=spd,  # K_ff is SPD (with the upper face prescribed, or the springs)
             workspace=workspace if method == "newton" and spd else None,
         )
@@ -337,7 +382,8 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
     contacts, nodes, opts = model.contacts, model.contacts.nodes, model.options
     with _timed(timings, "solve"):
         dw0, finish_solve = tangent.solve_with_contact(-R)
-        shift, motion = (np.zeros(3), 0.0) if gripper is None else gripper
+        drive = None if gripper is None or isinstance(gripper, tuple) else gripper
+        shift, motion = (np.zeros(3), 0.0) if gripper is None else gripper if drive is None else drive.kinematics()
         gap, slip = contacts.kinematics(model.mesh.nodes[nodes] + U[nodes], U[nodes] - state.displacement[nodes],
                                         motion, shift)
         w = contacts.to_local(slip + dw0)
@@ -347,9 +393,19 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         return None, None, (Status.NOT_FINITE, f"non-finite contact problem at Newton iteration {it}: "
                                                "the solve with the tangent broke down")
     with _timed(timings, "local"):
-        local = _solve_contact(model, tangent, q_scaled, r, workspace)
+        if drive is None:
+            local = _solve_contact(model, tangent, q_scaled, r, workspace)
+        else:  # the pad's height with its load equation (fe_contact.stepping.pad_load)
+            def load_solve(q, start, W=None, full=True):  # tight by semismooth Newton, else (full) as any step's
+                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton", W, retry=False)
+                return local if local.converged or not full else _solve_contact(model, tangent, q, start, workspace,
+                                                                                W=W)
+
+            local, q_scaled, W_scaled = drive.solve(load_solve, q_scaled, r, tangent.w_mean, tangent.W_scaled)
     if local_problem_hook is not None:
-        local_problem_hook(tangent.W_scaled, q_scaled, local)
+        local_problem_hook(tangent.W_scaled if drive is None else W_scaled, q_scaled, local)
+    if drive is not None and drive.failure:
+        return local, None, (Status.CONTACT_NOT_CONVERGED, f"{drive.failure} at Newton iteration {it}")
     if not local.converged:
         return local, None, (Status.CONTACT_NOT_CONVERGED,
                              f"contact did not converge at Newton iteration {it} with {opts.local_method}, "

@@ -12,11 +12,17 @@ cumulative vertical translation ``-t_z``) and ``h_1 = height``.  Nothing
 numerical in it sets the answer.
 
 A **frictional pad** (``Model(pad=Friction(...))``, :mod:`fe_contact.contact.bodies`)
-is lifted until every pad contact is open: its normal load falls to zero,
-and while it falls the pad and the floor each slip when their own friction
-limit is reached (:meth:`ReleaseSchedule._pad_lift`); each step is under
-step-doubling error control (:mod:`fe_contact.stepping.adaptive`).  Once the
-pad is open, the rest of the path moves nothing.
+is unloaded by load control (issue 39): ``steps`` load steps take the pad's
+normal load from its loaded value ``P_0`` to zero (:func:`pad_load_schedule`:
+half the steps uniform in the load, half in its logarithm down to a
+thousandth of the weight; :class:`~fe_contact.stepping.command.PadLoad`); in each the pad's
+height is one more unknown of the Newton loop, closed by the load
+(:mod:`fe_contact.stepping.pad_load`), and the pad and the floor each slip
+when their own friction limit is reached.  At ``P = 0`` every pad contact
+is open; the rest of the path (up to ``height``) moves nothing, and one settle
+step ends the release.  Its cost is ``steps`` Newton loops and two more;
+its accuracy (first order in the load step, backward-Euler friction) is
+measured in docs/release.md.
 
 A **bonded pad** (the paper's displacement control) is the exact special
 case of a pad that never slips: ``steps`` increments of ``d / steps`` summing
@@ -38,21 +44,30 @@ raises ``ValueError`` saying what to use instead.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq
 
 from ..fem.elasticity import internal_force
-from .adaptive import controlled_step
-from .release_path import pad_lift_rise, put_down_target
+from .command import PadLoad
+from .release_path import put_down_target
 from .model import Command, Model, State, StepReport
 
 MODES = ("lift",)
 OPEN_REMOVED = ("mode 'open' was removed (issue 28): its rest pose depended on an assumed pad stiffness and "
                 "release schedule; let go with mode 'lift' of a frictional pad (Model(pad=Friction(...)); "
                 "in a scenario [gripper] friction = mu), the physical release")
-GRIP_FLOOR = 0.1
-"""A frictional pad's lift: its load is stepped down geometrically to this fraction of the weight before the zero."""
+ERROR_TOL_REMOVED = ("error_tol was removed (issue 39): a frictional pad is unloaded by load control in `steps` "
+                     "load steps (no height search to control); its accuracy is set by `steps` (docs/release.md)")
+LOAD_FLOOR = 1e-3
+"""A frictional pad's load steps: the logarithmic half of :func:`pad_load_schedule` reaches down to this fraction
+of the weight."""
+LOAD_LOG_WEIGHT = 0.5
+"""The share of :func:`pad_load_schedule`'s steps uniform in the logarithm of the load."""
+MAX_STEPS = 100_000
+"""Largest ``Release.steps`` and ``max_steps`` accepted (each step a Newton loop: a bound on the release's work)."""
 LIFT_TOL = 1e-9
 """Floor normal force, relative to the loaded one, below which a lifted block hangs free of the floor."""
 SETTLE_FORCE = 1e-9
@@ -71,7 +86,10 @@ class Release:
     mode : {"lift"}
         The one release: the gripper rises (see the module docstring).
     steps : int
-        Increments of the release (>= 1).
+        Increments of the release, in [1, MAX_STEPS]: a bonded pad's lift
+        increments of ``d / steps``; a frictional pad's load steps
+        (:func:`pad_load_schedule`), which set the rest pose's accuracy (first
+        order: docs/release.md) and the release's cost (``steps`` Newton loops).
     max_steps : int
         Limit on the release's steps in all (ramp, extra lift, put-down).
     height : float
@@ -83,11 +101,9 @@ class Release:
         Horizontal retreat ``(dx, dy)`` of the gripper, m, taken along with the
         rise on the straight line from the loaded pose to ``height`` (module
         docstring): a loaded frictional pad drags the block with it.
-    error_tol : float
-        A frictional pad's lift: the error of the rest pose the adaptive steps
-        allow, as a fraction of the loaded lag (of the block's size without a
-        lag), in (0, 1): each step of ``steps`` is checked by step doubling and
-        refined where it needs it (:func:`fe_contact.stepping.adaptive.controlled_step`).
+    error_tol : None
+        Removed (issue 39): given, it raises ``ValueError`` saying so (the
+        load-controlled release has no height search to control).
     """
 
     mode: str
@@ -95,7 +111,7 @@ class Release:
     max_steps: int = 200
     height: float = 0.0
     away: tuple = (0.0, 0.0)
-    error_tol: float = 1e-2
+    error_tol: None = None
 
     def __post_init__(self):
         if self.mode == "open":
@@ -104,10 +120,10 @@ class Release:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("steps", "max_steps"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        if not 0 < self.error_tol < 1:
-            raise ValueError(f"error_tol must be in (0, 1), got {self.error_tol}")
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_STEPS:
+                raise ValueError(f"{name} must be an integer in [1, {MAX_STEPS}], got {v!r}")
+        if self.error_tol is not None:
+            raise ValueError(ERROR_TOL_REMOVED)
         if not (np.isfinite(self.height) and self.height >= 0):
             raise ValueError(f"height must be >= 0 m, got {self.height}")
         away = np.asarray(self.away, dtype=float) if np.ndim(self.away) == 1 else np.full(3, np.nan)
@@ -147,11 +163,8 @@ class ReleaseSchedule:
         self.lifted_off = False
         self.contact_points: list[tuple[float, float, bool]] = []  # (plate height m, force N, touching) putting down
         self.loaded_pad = -float(loaded.upper_force[2]) if loaded is not None else 0.0
-        lag = float(np.linalg.norm(loaded.lag)) if loaded is not None else 0.0
-        self.error_tol = release.error_tol * (lag if lag > 0 else self.size)  # m
-        if self.pad:
-            self.pad_points: list[tuple[float, float]] = []  # (pad height m, pad load N) lifting
         self.taken = 0
+        self.load_step = 0  # a frictional pad's load steps taken
         self.height_partials: dict = {}  # the last command's height: its partial derivatives (put_down_target)
 
     @property
@@ -167,15 +180,13 @@ class ReleaseSchedule:
         self.taken += command is not None
         return command
 
-    def take(self, model: Model, state: State, command: Command, step, consume: bool = False):
-        """``command`` from ``state`` with ``step`` (``step(model, state,
-        command, consume=...)``): a frictional pad's lift under step-doubling
-        error control (``Release.error_tol`` of the lag over the press depth,
-        :func:`~fe_contact.stepping.adaptive.controlled_step`, which keeps
-        ``state``), any other release step as it is.  Returns (State, StepReport)."""
-        if self.pad and command.moves:
-            return controlled_step(model, state, command, step, self.error_tol, self.depth)
-        return step(model, state, command, consume=consume)
+    def take(self, model: Model, state: State, command, step=None, consume: bool = False):
+        """``command`` from ``state`` (:func:`fe_contact.stepping.step.step`;
+        ``step`` is accepted for the callers that pass it, and must be that
+        function).  Returns (State, StepReport)."""
+        from .step import step as step_function
+
+        return (step or step_function)(model, state, command, consume=consume)
 
     def _along(self, dz: float) -> Command:
         """The gripper's motion of rise ``dz`` (m) along the release's path (module docstring)."""
@@ -211,30 +222,20 @@ class ReleaseSchedule:
             return Command()
         return None
 
-    def _pad_lift(self, j: int, state: State, report: StepReport | None) -> Command | None:
-        """The next rise of a frictional pad: to the pad load ``max(N - N_0 /
-        steps, q N)`` (uniform steps of the loaded pad load ``N_0`` while it is
-        large, geometric ones of ratio ``q`` towards zero, ``q`` taking
-        ``steps`` down to ``GRIP_FLOOR`` times the weight), then past the
-        zero; the height step is predicted by the secant of the pad load
-        against its height.  Once every pad contact is open, one settle step
-        (``Command()``) and the end."""
-        h = float(state.upper_translation[2])
-        pad_force = np.abs(self.loaded_pad) if report is None else np.linalg.norm(report.upper_force)
-        load = self.loaded_pad if report is None else -float(report.upper_force[2])
-        if pad_force <= 0.1 * SETTLE_FORCE * self.weight:
-            if self.lifted_off:
-                return self._rise(state)
-            self.lifted_off = True
-            self.height_partials = {"current": 1.0}
-            return Command()
-        self.pad_points.append((h, load))
-        dz, partials = pad_lift_rise(self.pad_points, self.loaded_pad, self.depth, self.weight, self.release.steps,
-                                     GRIP_FLOOR)
-        last = ("h", len(self.pad_points) - 1)
-        partials[last] = partials.get(last, 0.0) + 1.0  # the height h + dz
-        self.height_partials = partials
-        return self._along(dz)
+    def _pad_lift(self, j: int, state: State, report: StepReport | None):
+        """The next step of a frictional pad's release: the pad's load ``P_k``
+        of :func:`pad_load_schedule` (:class:`PadLoad`, its height solved for),
+        ``k = 1 .. steps``; then, the pad open, the rise and one settle step
+        (:meth:`_rise`)."""
+        current = self.loaded_pad if report is None else -float(report.upper_force[2])
+        while self.load_step < self.release.steps and self.loaded_pad > 0:
+            self.load_step += 1
+            load, d_loaded, d_weight = pad_load_schedule(self.loaded_pad, self.weight, self.load_step,
+                                                         self.release.steps)
+            if load < current or load == 0:  # a step that ended past a jump of the load skips the loads above
+                self.height_partials = {"load": (load, d_loaded, d_weight)}  # the height where the pad carries it
+                return PadLoad(load, tuple(self.retreat))
+        return self._rise(state)
 
     def _put_down(self, state: State, report: StepReport) -> Command | None:
         """The next step of the search for the height where the plate carries
@@ -251,6 +252,36 @@ class ReleaseSchedule:
         points.append((h, force, touching))
         target, self.height_partials = put_down_target(points, self.weight, self.axial_stiffness, slow, LIFT_TOL)
         return self._along(target - h)
+
+
+def pad_load_schedule(loaded: float, weight: float, k: int, steps: int) -> tuple[float, float, float]:
+    """The pad's load after ``k`` of ``steps`` load steps, N, and its partial
+    derivatives by the loaded load ``P_0`` and the weight ``W``: ``P_k`` is
+    uniform in
+
+        phi(P) = (1 - w) P / P_0 + w log(1 + P / c) / log(1 + P_0 / c),     c = LOAD_FLOOR W,
+
+    ``phi(P_k) = 1 - k / steps`` (``w = LOAD_LOG_WEIGHT``): half the steps
+    uniform in the load, half uniform in its logarithm down to ``c``, where a
+    pad stickier than the floor lets go (its friction ``mu_p P`` falls to the
+    floor's ``mu_f (P + W)`` at ``P = mu_f W / (mu_p - mu_f)``, 1e-2 W for a pad
+    100 x the floor's); ``P_steps = 0``.  Measured (docs/release.md): uniform
+    load steps put the rest of a pad 100 x the floor's 13.6 % of the lag from
+    the bonded lift at 8 steps."""
+    if k >= steps:
+        return 0.0, 0.0, 0.0
+    c = LOAD_FLOOR * weight
+    w, span = LOAD_LOG_WEIGHT, math.log1p(loaded / c)
+    phi = lambda p: (1 - w) * p / loaded + w * math.log1p(p / c) / span  # noqa: E731
+    target = 1.0 - k / steps
+    load = brentq(lambda p: phi(p) - target, 0.0, loaded, xtol=1e-15 * loaded, rtol=4 * np.finfo(float).eps)
+    # implicit derivatives of phi(P_k; P_0, c) = target
+    d_load = (1 - w) / loaded + w / ((c + load) * span)
+    d_span_loaded, d_span_c = 1.0 / (c + loaded), -loaded / (c * (c + loaded))
+    log_term = math.log1p(load / c)
+    d_loaded = -(1 - w) * load / loaded**2 - w * log_term / span**2 * d_span_loaded
+    d_c = -w * load / (c * (c + load) * span) - w * log_term / span**2 * d_span_c
+    return load, -d_loaded / d_load, -d_c * LOAD_FLOOR / d_load
 
 
 @dataclass(frozen=True)
@@ -291,10 +322,11 @@ class Rest:
         return self.status == "settled"
 
 
-def rest_check(model: Model, state: State, report: StepReport, schedule: ReleaseSchedule, step) -> Rest:
+def rest_check(model: Model, state: State, report: StepReport, schedule: ReleaseSchedule, step=None) -> Rest:
     """:class:`Rest` of ``state``, the end of a release (``report`` its last
-    step's) run by ``schedule``; ``step`` is :func:`fe_contact.stepping.step.step`
-    (it takes the one more step, from ``state``, which it does not modify).
+    step's) run by ``schedule``; the one more step, from ``state`` (not
+    modified), is :func:`fe_contact.stepping.step.step` (``step``, accepted
+    for the callers that pass it, must be that function).
 
     The one more step is judged by its last iterate, converged or not: a null
     step of a stress-free block in the air has no force scale but rounding,
@@ -304,7 +336,9 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     scale = schedule.force_scale
     held = model.pad is None
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
-    _, further = step(model, state, Command())
+    from .step import step as step_function  # the step module is above this one
+
+    _, further = (step or step_function)(model, state, Command())
     _, further_imbalance = _balance(model, further.displacement,
                                     np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
     motion = float(np.abs(further.displacement - state.displacement).max())

@@ -1,6 +1,6 @@
 """The release in a rollout's derivatives (:mod:`fe_contact.stepping.derivatives`):
-the steps a release took (in parts under step-doubling control), the heights it
-chose as functions of its path, and the put-down's root.
+the steps a release took (a failed step's halves), the heights it chose as
+functions of its path, and the put-down's root.
 """
 
 from __future__ import annotations
@@ -10,15 +10,13 @@ import numpy as np
 from .model import Model, State
 from .sequence import StepSequence
 
-__all__ = ["RecordingSequence", "put_down_root", "release_height_derivative"]
+__all__ = ["RecordingSequence", "load_step_root", "put_down_root", "release_height_derivative"]
 
 
 class RecordingSequence(StepSequence):
     """:class:`~fe_contact.stepping.sequence.StepSequence` that keeps the steps it
-    takes since the last one it yielded: a frictional pad's release step is
-    taken in parts under step-doubling control
-    (:func:`~fe_contact.stepping.adaptive.controlled_step`), and its derivative
-    follows the parts that were kept."""
+    takes since the last one it yielded (the parts a step was taken in), and
+    a step's derivative follows the parts that were kept."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -63,25 +61,21 @@ def release_height_derivative(model: Model, schedule, d_current: np.ndarray, pat
     (``d`` the press depth), an absolute height, a put-down's target
     (:func:`~fe_contact.stepping.release_path.put_down_target`, a function of
     the put-down's points, plate height and vertical force, of the weight ``W
-    = rho g V`` and of the column's stiffness ``k = E A / H``) or a pad's rise
-    (:func:`~fe_contact.stepping.release_path.pad_lift_rise`, of the lift's
-    points, pad height and load ``-F_z``, of the loaded pad load, the depth
-    and the weight).  ``path`` holds ``(d_h, d_F_z)`` of the release's start
+    = rho g V`` and of the column's stiffness ``k = E A / H``); a pad's load
+    step's height is a root instead (:func:`load_step_root`).  ``path`` holds ``(d_h, d_F_z)`` of the release's start
     (the loaded step) and of each release step so far.  ``d_young``, ``d_density``
     (J,) are the inputs' derivatives of ``E``, ``rho``.  A put-down's last
     height is then replaced by the root (:func:`put_down_root`).
     """
     out = np.zeros(d_current.shape)
-    points = schedule.pad_points if schedule.pad else schedule.contact_points
-    entries = path if schedule.pad else path[1:]  # a pad's first point is the loaded step
+    points = schedule.contact_points
+    entries = path[1:]
     first = len(entries) - len(points)  # the points are the last steps' (the current one excepted)
     for key, c in schedule.height_partials.items():
         if key == "current":
             out += c * d_current
         elif key == "depth":  # d = -t_z at the release's start
             out -= c * path[0][0]
-        elif key == "loaded":  # the loaded pad load -F_z
-            out -= c * path[0][1]
         elif key == "weight":
             out += c * model.weight / model.material.density * d_density
         elif key == "stiffness":
@@ -89,7 +83,7 @@ def release_height_derivative(model: Model, schedule, d_current: np.ndarray, pat
         else:
             kind, i = key
             h, force = entries[first + i]
-            out += c * (h if kind == "h" else -force if kind == "n" else force)
+            out += c * (h if kind == "h" else force)
     return out
 
 
@@ -110,3 +104,22 @@ def put_down_root(schedule, d_rest: np.ndarray, force_z: int, d_state: tuple) ->
     dh[-1] = 0.0
     d_rest += np.outer(d_rest[:, -1], dh)
     return tuple(x + np.outer(x[:, -1], dh) for x in d_state)
+
+
+def load_step_root(d_out: np.ndarray, force_z: int, load: float, d_load: np.ndarray, d_state: tuple) -> tuple:
+    """A pad's load step (:mod:`fe_contact.stepping.pad_load`) found its height
+    ``h`` where the pad's vertical force is ``F_z(h, p) = -P(p)`` (``P`` the
+    step's load, of the loaded load and the weight,
+    :func:`~fe_contact.stepping.release.pad_load_schedule`; ``d_load`` its
+    derivative (J,)): ``dh/dp = -(dF_z/dp + dP/dp) / (dF_z/dh)`` (implicit
+    function theorem, ``dF_z/dh`` the last column, the step's own height),
+    added to every derivative through its last column.  ``d_out`` (9, J) the
+    step's output derivatives (row ``force_z`` the pad's vertical force),
+    ``d_state`` the state's (arrays (., J)); returns both corrected.  At ``P =
+    0`` the pad is open and the block's state does not depend on ``h``."""
+    if load == 0:
+        return d_out, d_state
+    g = d_out[force_z] + d_load
+    dh = -g / g[-1]
+    dh[-1] = 0.0
+    return d_out + np.outer(d_out[:, -1], dh), tuple(x + np.outer(x[:, -1], dh) for x in d_state)

@@ -7,57 +7,7 @@ differentiate the release's path as the schedule chose it.
 
 from __future__ import annotations
 
-__all__ = ["pad_lift_rise", "put_down_target"]
-
-
-def pad_lift_rise(points, loaded: float, depth: float, weight: float, steps: int,
-                  grip_floor: float) -> tuple[float, dict]:
-    """The next rise of a frictional pad's lift (:meth:`ReleaseSchedule._pad_lift`),
-    m, and its partial derivatives (to differentiate the release's path).
-
-    ``points`` are the lift's ``(pad height m, pad load N)`` so far, the last
-    the current one ``(h, N)``; ``loaded`` the loaded pad load ``N_0``, N;
-    ``depth`` the press depth ``d``, m; ``weight`` ``W``, N.  The rise is
-    ``(N - target) / s`` to ``target = max(N - N_0 / steps, q N, f N_0)``
-    (``f = min(1/2, grip_floor W / N_0)``, ``q = f^(1 / (steps - 1))``), or
-    ``2 N / s`` past the zero once ``N <= f N_0``; ``s`` the secant of the last
-    two points' load against height when it is positive, else ``N_0 / d``.
-    The partials are keyed ``("h", i)``, ``("n", i)`` (of point ``i``),
-    ``"loaded"``, ``"depth"``, ``"weight"``.
-    """
-    last = len(points) - 1
-    h, load = points[last]
-    slope, d_slope = loaded / depth, {"loaded": 1.0 / depth, "depth": -loaded / depth**2}  # -dN/dh of the press
-    if len(points) >= 2:
-        (h1, n1), (h2, n2) = points[-2:]
-        if h2 != h1 and (n1 - n2) / (h2 - h1) > 0:
-            slope = (n1 - n2) / (h2 - h1)
-            d_slope = {("n", last - 1): 1.0 / (h2 - h1), ("n", last): -1.0 / (h2 - h1),
-                       ("h", last): -slope / (h2 - h1), ("h", last - 1): slope / (h2 - h1)}
-    floor = min(0.5, grip_floor * weight / loaded)
-    d_floor = {} if floor == 0.5 else {"weight": floor / weight, "loaded": -floor / loaded}
-    if load <= floor * loaded * (1 + 1e-9):  # past the zero: every pad contact opens
-        dz, d_rise = 2.0 * load / slope, {("n", last): 2.0}
-    else:
-        m = max(steps - 1, 1)
-        q = floor ** (1.0 / m)
-        d_q = {k: v * q / (m * floor) for k, v in d_floor.items()}
-        options = [load - loaded / steps, q * load, floor * loaded]
-        target = max(options)
-        d_target = [{("n", last): 1.0, "loaded": -1.0 / steps},
-                    _sum_partials((q, {("n", last): 1.0}), (load, d_q)),
-                    _sum_partials((floor, {"loaded": 1.0}), (loaded, d_floor))][options.index(target)]
-        dz, d_rise = (load - target) / slope, _sum_partials((1.0, {("n", last): 1.0}), (-1.0, d_target))
-    return dz, _sum_partials((1.0 / slope, d_rise), (-dz / slope, d_slope))
-
-
-def _sum_partials(*terms) -> dict:
-    """``sum c d`` of partial-derivative dicts ``d`` with coefficients ``c``."""
-    out: dict = {}
-    for c, d in terms:
-        for k, v in d.items():
-            out[k] = out.get(k, 0.0) + c * v
-    return out
+__all__ = ["put_down_target"]
 
 
 def put_down_target(points, weight: float, axial_stiffness: float, slow: bool,

@@ -126,5 +126,5 @@ def release_to_rest(model: Model, state: State, release: Release, loaded: StepRe
     for _ in sequence:
         pass
     reports = sequence.reports
-    rest = rest_check(model, sequence.state, reports[-1], sequence.schedule, step) if check and reports else None
+    rest = rest_check(model, sequence.state, reports[-1], sequence.schedule) if check and reports else None
     return sequence.state, reports, rest

@@ -22,10 +22,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .adaptive import half_command, joined_report
 from .gripper import compliant_step
 from .held import held_step, next_state
+from .command import PadLoad
 from .model import Command, Model, State, StepReport
+from .pad_load import load_step
 from .predictor import commanded_pose
 
 
@@ -38,8 +39,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     model : Model
     state : State
         State at the start of the step (not modified).
-    command : Command
-        Rigid motion increment of the upper face.
+    command : Command or PadLoad
+        Rigid motion increment of the upper face, or (a frictional pad only)
+        the pad's load at the end of the step, its height solved for
+        (:mod:`fe_contact.stepping.pad_load`).
     local_problem_hook : callable, optional
         Called as ``hook(W, q, solution)`` after every local contact solve with
         the problem exactly as the local solver got it: ``u = W r + q`` in the
@@ -71,10 +74,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     """
     _check_arguments(model, state, command)
     t0 = time.perf_counter()
+    if model.pad is not None:  # a pose or a load (PadLoad); a compliant gripper's plate solved in the loop
+        return _split_step(model, state, command, t0, local_problem_hook, 0)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
-    if model.pad is not None:
-        return _split_step(model, state, command, t0, local_problem_hook, 0)
     translation, rotation = commanded_pose(state, command)
     eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
     if not report.converged:
@@ -82,31 +85,67 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     return next_state(state, eq, translation, rotation, report), report
 
 
+def half_command(command: Command) -> Command:
+    """Half of a moving command (the same straight path, in two parts)."""
+    return Command(dx=command.dx / 2, dy=command.dy / 2, dz=command.dz / 2, dtheta=command.dtheta / 2)
+
+
+def joined_report(state: State, first: StepReport, second: StepReport, command: Command, message: str,
+                  combine=sum) -> StepReport:
+    """The report of a step taken in two parts from ``state``: the second
+    part's, with the whole ``command``, both parts' slip increments, their
+    Newton iterations combined by ``combine`` (``sum``: the cost; ``max``: the
+    longest Newton loop), and ``message``."""
+    return replace(second, command=command, step_index=state.step_index + 1,
+                   newton_iterations=combine((first.newton_iterations, second.newton_iterations)),
+                   slip_increment=first.slip_increment + second.slip_increment, message=message)
+
+
 MAX_SPLITS = 4
 """A frictional pad's step that fails is split in halves, at most this many times over."""
 
 
-def _split_step(model: Model, state: State, command: Command, t0: float, hook, depth: int):
-    """A step with a frictional pad; if it fails, two steps of half the command
-    each (recursively, up to :data:`MAX_SPLITS` levels): the pad's contacts
-    changing state within a step can defeat the local solvers (measured: a
-    pad of mu 60 opening), and half the motion is a finer path of the same
-    friction law.  The report of a split step is its last part's, with the
-    whole command, the iterations of all parts and a message saying so."""
+def _pad_step(model: Model, state: State, command, t0: float, hook):
+    """One step with a frictional pad: a commanded pose, or a load (:class:`PadLoad`,
+    the pad's height solved for; a compliant gripper's plate pose solved for).
+    Returns ``(eq, report, translation, rotation, plate)`` (plate None: the commanded one)."""
+    if isinstance(command, PadLoad) or not model.gripper.rigid:
+        return load_step(model, state, command, t0, hook)
     translation, rotation = commanded_pose(state, command)
-    eq, report = held_step(model, state, command, translation, rotation, t0, hook)
+    return (*held_step(model, state, command, translation, rotation, t0, hook), translation, rotation, None)
+
+
+def _halves(state: State, command):
+    """The two parts of a step: half the motion twice, or the load half way, then the whole load."""
+    if isinstance(command, PadLoad):
+        current = float(state.reaction[state.slip_path.size:, 0].sum())  # the pad's load now
+        return replace(command, load=0.5 * (current + command.load)), command
+    half = half_command(command)
+    return half, half
+
+
+def _split_step(model: Model, state: State, command, t0: float, hook, depth: int):
+    """A step with a frictional pad; if it fails, two steps of half the command
+    (or of the load half way, then the whole) each (recursively, up to
+    :data:`MAX_SPLITS` levels): the pad's contacts changing state within a
+    step can defeat the local solvers (measured: a pad of mu 60 opening), and
+    half the motion is a finer path of the same friction law.  The report of a
+    split step is its last part's, with the whole motion, the iterations of
+    all parts and a message saying so."""
+    eq, report, translation, rotation, plate = _pad_step(model, state, command, t0, hook)
     if report.converged:
-        return next_state(state, eq, translation, rotation, report), report
+        return next_state(state, eq, translation, rotation, report, plate=plate), report
     if depth >= MAX_SPLITS:
         return state, report
-    half = half_command(command)
-    middle, first = _split_step(model, state, half, t0, hook, depth + 1)
+    first_part, second_part = _halves(state, command)
+    middle, first = _split_step(model, state, first_part, t0, hook, depth + 1)
     if not first.converged:
         return state, first
-    end, second = _split_step(model, middle, half, t0, hook, depth + 1)
+    end, second = _split_step(model, middle, second_part, t0, hook, depth + 1)
     if not second.converged:
         return state, second
-    report = joined_report(state, first, second, command, f"converged in parts (half steps, {depth + 1} level(s) deep)")
+    taken = command if isinstance(command, Command) else Command(*(end.upper_translation - state.upper_translation))
+    report = joined_report(state, first, second, taken, f"converged in parts (half steps, {depth + 1} level(s) deep)")
     return replace(end, step_index=state.step_index + 1), report
 
 
@@ -116,7 +155,9 @@ def _check_arguments(model, state, command) -> None:
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
     if not isinstance(state, State):
         raise ValueError(f"state must be a State, got {type(state).__name__}")
-    if not isinstance(command, Command):
+    if isinstance(command, PadLoad) and model.pad is None:
+        raise ValueError("a PadLoad command needs a frictional pad (Model(pad=Friction(...)))")
+    if not isinstance(command, (Command, PadLoad)):
         raise ValueError(f"command must be a Command, got {type(command).__name__}")
     expected = {"displacement": (model.mesh.n_nodes, 3), "reaction": (model.n_contacts, 3),
                 "upper_translation": (3,), "slip_path": (model.n_lower,)}

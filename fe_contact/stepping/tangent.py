@@ -224,20 +224,24 @@ class Tangent:
         return x[self.contact_index].reshape(-1, 3, *k), finish_lu
 
 
+REFRESH_HORIZON = 30
+"""Iterations within which a kept tangent must converge, else it is refreshed (the Newton cap before issue 39)."""
+
+
 def refresh_pays(tangent: Tangent, rate: float, rel_res: float, opts, it: int) -> bool:
     """Whether a new tangent saves more iterations than it costs.
 
     At contraction ``rate`` per iteration, reaching ``newton_tol`` from
     ``rel_res`` takes ``log(tol / res) / log(rate)`` iterations, with a fresh
     tangent about ``log(tol / res) / log(_FRESH_RATE)``.  A tangent that does
-    not contract, or would not converge within ``newton_max_iter``, is always
-    refreshed.
+    not contract, or would not converge within ``newton_max_iter`` (at most
+    :data:`REFRESH_HORIZON`), is always refreshed.
     """
     if rate >= 1.0:
         return True
     gap = math.log(opts.newton_tol / rel_res)
     needed = gap / math.log(rate)
-    if it + needed > opts.newton_max_iter:
+    if it + needed > min(opts.newton_max_iter, REFRESH_HORIZON):
         return True
     saved = needed - gap / math.log(_FRESH_RATE)
     return saved * tangent.iteration_s > tangent.build_s

@@ -41,8 +41,8 @@ A scenario reads::
     steps = 16                                # increments (>= 1; default 16)
     height = 0.0                              # the gripper rises to this height (m, >= 0) ...
     away = [0.0, 0.0]                         # ... retreating (dx, dy) m along with the rise
-    error_tol = 1e-2                          # frictional pad: the release's step control keeps the
-                                              # rest pose's error below this fraction of the lag, (0, 1)
+                                              # (a frictional pad: `steps` load steps of its load to 0;
+                                              # error_tol was removed by issue 39, exit 2)
 
 Unknown keys and invalid values raise :class:`~pushplan.errors.InputError` naming the
 key.  The tables ``[plan]``, ``[mujoco]`` and ``[sweep]`` belong to other commands
@@ -58,7 +58,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import (AUTO_FBAR_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
-                        Model, MU_MAX, Release, SolverOptions, block_mesh)
+                        Model, MU_MAX, ERROR_TOL_REMOVED, Release, SolverOptions, block_mesh)
 
 from ..errors import InputError, InputWarning
 from ..limits import (MAX_ACCELERATION, MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH,
@@ -75,9 +75,7 @@ TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "sol
             *EXTRA_TABLES}
 RELEASE_MODES = ("lift",)
 DEFAULT_RELEASE_STEPS = 16
-"""Release increments when ``[release]`` omits ``steps`` (a frictional pad's lift refines
-them under step-doubling error control, ``error_tol``)."""
-DEFAULT_ERROR_TOL = Release.__dataclass_fields__["error_tol"].default
+"""Release increments when ``[release]`` omits ``steps`` (a frictional pad: its load steps)."""
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
 
@@ -168,8 +166,6 @@ class Scenario:
                 optional["release"]["height"] = self.release.height
             if any(self.release.away):
                 optional["release"]["away"] = list(self.release.away)
-            if self.release.error_tol != DEFAULT_ERROR_TOL:
-                optional["release"]["error_tol"] = self.release.error_tol
         return {
             "name": self.name,
             "description": self.description,
@@ -285,6 +281,8 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     if "release" not in top:
         return None
     t = top.table("release", {"mode", "steps", "height", "away", "error_tol"}, required={"mode"})
+    if "error_tol" in t.data:
+        raise InputError(f"release.{ERROR_TOL_REMOVED}")
     if t.data.get("mode") == "open":
         raise InputError('release.mode = "open" was removed: its rest pose depended on an assumed pad stiffness '
                          'and schedule; use mode = "lift" with gripper.friction = mu (the pad as a frictional contact)')
@@ -301,9 +299,8 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     if not isinstance(away, list) or len(away) != 2:
         raise InputError(f"release.away must be [dx, dy] in m, got {away!r}")
     away = tuple(number(f"release.away[{i}]", v, minimum=-MAX_LENGTH, maximum=MAX_LENGTH) for i, v in enumerate(away))
-    error_tol = t.number("error_tol", DEFAULT_ERROR_TOL, lo=0.0, hi=1.0)
     return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height,
-                   away=away, error_tol=error_tol)
+                   away=away)
 
 
 def _commands(loads) -> tuple[Command, ...]:
