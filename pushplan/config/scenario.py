@@ -9,7 +9,7 @@ A scenario reads::
     elements = [20, 20, 5]                    # nx, ny, nz
     quadrature = 3                            # Gauss points per direction (2 or 3)
     element = "auto"                          # optional: "hex8", "fbar" (does not lock as nu -> 0.5) or
-                                              # "auto" (fbar for poisson > 0.45); docs/materials.md
+                                              # "auto" (hex8 to nu 0.35, fbar from 0.45, blended); docs/materials.md
     [material]
     young = 210e9                             # Pa
     poisson = 0.3
