@@ -1,5 +1,5 @@
 """``element = "auto"`` changes its answers continuously with nu (issue 43 item 6): the
-plain hex8 up to nu = 0.35, F-bar from 0.45, and between them the F-bar family member
+plain hex8 up to nu = 0.45, F-bar from 0.48, and between them the F-bar family member
 ``a = (J_bar / J)^(w/3)`` with ``w`` rising smoothly in nu (docs/materials.md).
 
 References: central differences of the blend's forces, energy and its weight, the
@@ -68,11 +68,11 @@ def _answers(nu: float) -> np.ndarray:
                      reports[1].twist])
 
 
-@pytest.mark.parametrize("nu", [AUTO_HEX8_POISSON, 0.40, AUTO_FBAR_POISSON])
+@pytest.mark.parametrize("nu", [AUTO_HEX8_POISSON, 0.465, AUTO_FBAR_POISSON])
 def test_the_default_elements_answers_are_continuous_in_nu(nu):
     """A change of 1e-4 in nu changes no answer by more than 1 % at either end of the
-    blend or inside it (hex8 -> F-bar at 0.45 jumped 10-14 % before, issue 43); measured:
-    at most 0.04 %."""
+    blend or inside it (hex8 -> F-bar at 0.45 jumped 10-14 % before, issue 43); measured: at
+    most 0.15 % at 0.45, 0.23 % at 0.465 (the steepest), 0.08 % at 0.48."""
     a, b = _answers(nu), _answers(nu + 1e-4)
     assert np.all(np.abs(b - a) <= CONTINUITY * np.abs(a)), (a, b)
 
@@ -80,15 +80,15 @@ def test_the_default_elements_answers_are_continuous_in_nu(nu):
 def test_rollout_derivative_in_nu_inside_the_blend():
     """``d/dnu`` of a rollout where the default element's weight moves with nu
     (its ``dw/dnu df/dw`` term) against central differences of whole rollouts."""
-    model = Model(block_mesh(SIZE, (2, 2, 1)), Material(1e6, 0.40, model="neo_hookean"),
+    model = Model(block_mesh(SIZE, (2, 2, 1)), Material(1e6, 0.465, model="neo_hookean"),
                   Friction(0.3, 0.15, 0.4), options=SolverOptions(newton_tol=1e-13, local_tol=1e-14))
     assert model.element == AUTO_ELEMENT and 0 < model.geometry.fbar_weight < 1
     check = check_derivatives(model, PUSH[:1] + [Command(dx=3e-4, dy=1e-4, dtheta=0.01)],
-                              parameters=("poisson",), rel_step=3e-5)
+                              parameters=("poisson",), rel_step=1e-5)
     assert check.max_error <= 1e-6, check.worst()
 
 
 def test_initial_state_of_a_blend_is_unloaded():
-    model = Model(block_mesh(SIZE, (2, 2, 1)), Material(1e6, 0.40), Friction(0.3, 0.3))
+    model = Model(block_mesh(SIZE, (2, 2, 1)), Material(1e6, 0.465), Friction(0.3, 0.3))
     f, _ = internal_force(model.geometry, model.mesh.elements, initial_state(model).displacement, model.material)
     assert np.abs(f).max() == 0.0

@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ._kernels import stvk_forces
 from .assembly import SparsityPattern, assemble_matrix, assemble_vector, element_dofs
 from .element import det3, gauss_hex, hex8_grad, inv3
-from .finite_strain import AUTO_ELEMENT, ELEMENTS, element_energy, element_forces, element_tangents
+from .finite_strain import checked_weight, element_energy, element_forces, element_tangents
 from .material import check_law, green_lagrange, stress
 from .mesh import BlockMesh
 
@@ -100,14 +100,10 @@ class ElementGeometry:
         ``dN_a/dX_J`` at each Gauss point, 1/m.
     dvol : ndarray, shape (n_elems, n_qp)
         ``det(dX/dxi) * weight``, m^3.
-    element : str
-        Formulation, one of :data:`fe_contact.fem.finite_strain.ELEMENTS`:
-        ``"hex8"`` (plain, the paper's) or ``"fbar"`` (F-bar, does not lock
-        as ``nu -> 0.5``), or :data:`~fe_contact.fem.finite_strain.AUTO_ELEMENT`
-        (``element="auto"`` between the two, with its ``fbar_weight``).
-    fbar_weight : float
-        ``w`` of the F-bar factor ``(J_bar / J)^(w/3)``: 0 for ``"hex8"``, 1 for
-        ``"fbar"`` (set from ``element`` for those), in (0, 1) for the blend.
+    element, fbar_weight : str, float
+        ``"hex8"`` (plain, the paper's; weight 0), ``"fbar"`` (F-bar, does not lock as
+        ``nu -> 0.5``; weight 1) or ``"fbar_blend"`` (``element="auto"`` between them, its
+        weight ``w`` in ``(J_bar / J)^(w/3)`` given): :func:`~fe_contact.fem.finite_strain.checked_weight`.
     """
 
     grad: np.ndarray
@@ -116,12 +112,7 @@ class ElementGeometry:
     fbar_weight: float | None = None
 
     def __post_init__(self) -> None:
-        if self.element not in (*ELEMENTS, AUTO_ELEMENT):
-            raise ValueError(f"element must be one of {ELEMENTS}, got {self.element!r}")
-        w = {"hex8": 0.0, "fbar": 1.0}.get(self.element, self.fbar_weight)
-        if w is None or not 0.0 <= float(w) <= 1.0:
-            raise ValueError(f"fbar_weight must be in [0, 1] for element {self.element!r}, got {self.fbar_weight!r}")
-        object.__setattr__(self, "fbar_weight", float(w))
+        object.__setattr__(self, "fbar_weight", checked_weight(self.element, self.fbar_weight))
         grad = np.array(self.grad, dtype=np.float64)
         dvol = np.array(self.dvol, dtype=np.float64)
         if grad.ndim != 4 or grad.shape[2:] != (8, 3):
@@ -161,10 +152,8 @@ def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8"
     mesh : BlockMesh
     quadrature : int, default 3
         Gauss points per direction (3 -> 27 points, as in the paper; 2 -> 8).
-    element : str, default "hex8"
-        Formulation (``"hex8"`` or ``"fbar"``, or ``AUTO_ELEMENT`` with ``fbar_weight``).
-    fbar_weight : float, optional
-        The blend's F-bar weight (:class:`ElementGeometry`).
+    element, fbar_weight : str, default "hex8"; float, optional
+        Formulation and the blend's weight (:class:`ElementGeometry`).
 
     Returns
     -------

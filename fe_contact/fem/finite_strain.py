@@ -39,7 +39,7 @@ import numpy as np
 
 from .material import energy_density, principal_stiffness, stress, stress_and_tangent, stress_moduli_derivatives
 
-__all__ = ["ELEMENTS", "AUTO_FBAR_POISSON", "AUTO_HEX8_POISSON", "resolve_element", "auto_fbar_weight", "auto_fbar_weight_slope",
+__all__ = ["ELEMENTS", "AUTO_FBAR_POISSON", "AUTO_HEX8_POISSON", "resolve_element", "auto_fbar_weight", "auto_fbar_weight_slope", "checked_weight",
            "fbar_weight", "element_forces", "element_tangents",
            "element_force_moduli_derivatives", "element_force_weight_derivative", "element_energy", "point_deformation", "material_limit"]
 
@@ -48,14 +48,15 @@ ELEMENTS = ("hex8", "fbar")
 AUTO_ELEMENT = "fbar_blend"
 """The resolved name of ``element="auto"`` between :data:`AUTO_HEX8_POISSON` and
 :data:`AUTO_FBAR_POISSON`: the F-bar family member of weight ``w(nu)``."""
-AUTO_HEX8_POISSON = 0.35
+AUTO_HEX8_POISSON = 0.45
 """``element="auto"`` is the plain hex8 up to this Poisson's ratio (its specialised StVK
-kernels; the paper's steel, nu = 0.3, and the foams keep their results)."""
-AUTO_FBAR_POISSON = 0.45
-"""``element="auto"`` is F-bar from this Poisson's ratio up: at nu = 0.45 the hex8's press
-force on 12 x 12 x 4 is 5.8 % above F-bar's, at 0.499 9.5x the converged one on 4 x 4 x 2
-(docs/materials.md).  Between the two the volumetric weight rises smoothly
-(:func:`auto_fbar_weight`): the answers change continuously with nu."""
+kernels): the paper's steel (nu = 0.3), the foams and the shipped nu = 0.45 scenarios keep
+their results to the bit.  At 0.45 the hex8's press force on 12 x 12 x 4 is 5.8 % above
+F-bar's, its discretisation error there (docs/materials.md)."""
+AUTO_FBAR_POISSON = 0.48
+"""``element="auto"`` is F-bar from this Poisson's ratio up (the hex8's press force is 9.5x
+the converged one at nu = 0.499 on 4 x 4 x 2).  Between the two the volumetric weight
+rises smoothly (:func:`auto_fbar_weight`): the answers change continuously with nu."""
 _CHUNK = 1024  # elements per batch of the tangent (bounds the (e, q, 8, 27) temporaries)
 
 
@@ -86,6 +87,17 @@ def resolve_element(name, poisson: float) -> str:
     if name not in ELEMENTS:
         raise ValueError(f"element must be 'auto' or one of {ELEMENTS}, got {name!r}")
     return name
+
+
+def checked_weight(element: str, weight: float | None) -> float:
+    """The F-bar weight of an element's geometry: 0 for ``"hex8"``, 1 for ``"fbar"``,
+    ``weight`` in [0, 1] for :data:`AUTO_ELEMENT`; ValueError otherwise."""
+    if element not in (*ELEMENTS, AUTO_ELEMENT):
+        raise ValueError(f"element must be one of {ELEMENTS}, got {element!r}")
+    w = {"hex8": 0.0, "fbar": 1.0}.get(element, weight)
+    if w is None or not 0.0 <= float(w) <= 1.0:
+        raise ValueError(f"fbar_weight must be in [0, 1] for element {element!r}, got {weight!r}")
+    return float(w)
 
 
 def fbar_weight(element: str, poisson: float) -> float:

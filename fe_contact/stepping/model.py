@@ -162,7 +162,7 @@ class Model:
     element: str = "auto"
     """Element formulation (:data:`fe_contact.fem.finite_strain.ELEMENTS`):
     ``"hex8"``, ``"fbar"`` (does not lock as nu -> 0.5), or ``"auto"`` (hex8 up to
-    ``poisson = AUTO_HEX8_POISSON``, 0.35, F-bar from ``AUTO_FBAR_POISSON``, 0.45, and
+    ``poisson = AUTO_HEX8_POISSON``, 0.45, F-bar from ``AUTO_FBAR_POISSON``, 0.48, and
     between them ``"fbar_blend"``, the F-bar family member whose weight rises smoothly
     with nu: :func:`~fe_contact.fem.finite_strain.auto_fbar_weight`); the resolved name
     after construction (its weight: ``geometry.fbar_weight``)."""

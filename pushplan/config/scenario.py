@@ -9,7 +9,7 @@ A scenario reads::
     elements = [20, 20, 5]                    # nx, ny, nz
     quadrature = 3                            # Gauss points per direction (2 or 3)
     element = "auto"                          # optional: "hex8", "fbar" (does not lock as nu -> 0.5) or
-                                              # "auto" (hex8 to nu 0.35, fbar from 0.45, blended); docs/materials.md
+                                              # "auto" (hex8 to nu 0.45, fbar from 0.48, blended); docs/materials.md
     [material]
     young = 210e9                             # Pa
     poisson = 0.3
@@ -58,7 +58,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fe_contact import BlockMesh, Command, Friction, Gripper, Material, Model, Release, SolverOptions, block_mesh
-from fe_contact.fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
+from fe_contact.fem.finite_strain import AUTO_HEX8_POISSON, ELEMENTS
 from fe_contact.fem.material import LAWS
 from fe_contact.stepping.model import LOCAL_METHODS
 
@@ -369,7 +369,7 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)
-    if scenario.element == "hex8" and scenario.poisson > AUTO_FBAR_POISSON:
+    if scenario.element == "hex8" and scenario.poisson > AUTO_HEX8_POISSON:
         warnings.warn(InputWarning(
             f"block.element = \"hex8\" with material.poisson = {scenario.poisson:g} locks: too stiff, the more so "
             f"as poisson -> 0.5 (press force 9.5x the converged one at 0.499 on 4x4x2); use \"fbar\" or \"auto\""),
