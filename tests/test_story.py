@@ -103,3 +103,59 @@ def test_a_pad_that_drags_the_block_does_not_warn(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "b.toml"), "--out", str(tmp_path / "b"), "--quiet",
                  "--no-recording"]) == 0
     assert all(s["pad_slip"] is None for s in json.loads((tmp_path / "b" / "summary.json").read_text())["steps"])
+
+
+PLAN_TO_REST = """
+name = "lift_plan"
+[block]
+size = [0.04, 0.03, 0.02]
+elements = [3, 2, 2]
+quadrature = 2
+[material]
+young = 2e6
+poisson = 0.45
+density = 0.0
+[friction]
+mu_x = 0.6
+mu_y = 0.2
+angle_deg = 20.0
+[[load]]
+dz = -4e-4
+[release]
+mode = "lift"
+steps = 4
+error_tol = 0.03
+[plan]
+x = 3e-3
+y = 1e-3
+yaw_deg = 5.0
+steps = 5
+max_step = 1.2e-3
+max_dtheta_deg = 2.0
+tolerance = 3e-5
+planning_elements = [3, 2, 2]
+planning_quadrature = 2
+"""
+
+
+def test_a_plan_to_rest_records_its_verified_release_and_rest_pose(tmp_path):
+    """The issue: a plan to a rest target wrote a recording that ended at the loaded pose
+    next to the target box.  Now its verified release steps follow the pushes (labelled
+    ``release``) and ``plan/rest`` ends at plan.json's verified rest pose, with a marker."""
+    (tmp_path / "p.toml").write_text(PLAN_TO_REST)
+    out = tmp_path / "plan"
+    assert main(["plan", str(tmp_path / "p.toml"), "--out", str(out), "--quiet", "--no-baseline"]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    rest = np.array(doc["final_poses"]["rest"]["pose"][:2])  # m (yaw in deg)
+    rrd = out / "recording.rrd"
+    labels = [label[0] for _, label in _rows(rrd, "/run/phase", "label")]
+    assert labels[:6] == ["press"] + ["push"] * 5 and len(labels) > 6 and set(labels[6:]) == {"release"}
+    markers = [text[0] for _, text in _rows(rrd, "/markers", "TextLog:text")]
+    assert any(m.startswith("rest: the verified release") for m in markers), markers
+    path = [p for _, p in _rows(rrd, "/plan/rest", "LineStrips3D:strips")]
+    assert path, "no plan/rest"
+    start, end = (np.asarray(p, float) for p in np.asarray(path[-1][0]))
+    loaded = np.array(doc["final_poses"]["loaded"]["pose"][:2])
+    np.testing.assert_allclose(end[:2], rest, atol=1e-8)  # float32 in the recording
+    np.testing.assert_allclose(start[:2], loaded, atol=1e-8)
+    assert np.linalg.norm(rest - loaded) > 1e-4  # the springback the viewer now shows
