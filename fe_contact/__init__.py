@@ -37,7 +37,7 @@ from .fem.elasticity import Material
 from .contact.friction import MU_MAX, local_frame, project_elliptic_cone
 from .fem.loads import GRAVITY, Gripper
 from .contact.local_solver import solve_local
-from .fem.finite_strain import AUTO_FBAR_POISSON, ELEMENTS
+from .fem.finite_strain import AUTO_HEX8_POISSON, ELEMENTS
 from .fem.material import LAWS
 from .fem.mesh import BlockMesh, block_mesh, surface_quads
 from .stepping.model import (
@@ -78,7 +78,7 @@ def __getattr__(name):
 
 __all__ = [
     "applicable_parameters",
-    "AUTO_FBAR_POISSON",
+    "AUTO_HEX8_POISSON",
     "block_mesh",
     "BlockMesh",
     "build_model",

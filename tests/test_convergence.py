@@ -40,6 +40,22 @@ def test_oscillating_and_diverging_sequences_get_no_order():
     assert flat.value == 2.0 and flat.gci == 0.0
 
 
+def test_an_order_far_from_the_elements_is_flagged_not_banded():
+    """Issue 43: a coarse start observing order 3.3 on a second-order element is outside
+    the asymptotic range: the order and a note, no value and no GCI band; the same
+    sequence without the range is extrapolated (the formula alone cannot tell)."""
+    from pushplan.studies.convergence import ASYMPTOTIC_ORDERS
+
+    h, phi = [1.0, 2.0, 4.0], [3.278 - 0.9 * x**3.3 for x in (1.0, 2.0, 4.0)]
+    flagged = extrapolate(h, phi, ASYMPTOTIC_ORDERS)
+    assert flagged.order == pytest.approx(3.3, rel=1e-9)
+    assert flagged.value is None and flagged.gci is None and flagged.gci_abs is None
+    assert "not in the asymptotic range" in flagged.note and "3.30" in flagged.note
+    assert extrapolate(h, phi).gci is not None
+    for p in (0.7, 2.0, 2.4):  # the orders of singular contact edges and of the element: banded
+        assert extrapolate(h, [3.278 - 0.9 * x**p for x in h], ASYMPTOTIC_ORDERS).gci is not None
+
+
 def test_paper_case3_twist_converges_from_below_on_coarse_levels():
     """4x4x2, 8x8x4, 16x16x8 (the issue's table: 3.05409, 3.19308, 3.25035 deg)."""
     scenario = load_scenario(SCENARIOS / "paper_case3.toml")

@@ -301,9 +301,9 @@ def test_foam_pressed_to_40_percent_and_pushed():
 
 
 def test_element_choice():
-    assert resolve_element("auto", 0.3) == "hex8"
-    assert resolve_element("auto", 0.45) == "hex8"  # the shipped nu = 0.45 scenarios unchanged
-    assert resolve_element("auto", 0.46) == "fbar"
+    assert resolve_element("auto", 0.3) == resolve_element("auto", 0.45) == "hex8"  # the shipped scenarios
+    assert resolve_element("auto", 0.46) == "fbar_blend"  # continuous in nu: tests/test_element_auto.py
+    assert resolve_element("auto", 0.48) == resolve_element("auto", 0.49) == "fbar"
     assert resolve_element("hex8", 0.499) == "hex8"
     with pytest.raises(ValueError, match="element"):
         resolve_element("hex20", 0.3)

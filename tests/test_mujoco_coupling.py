@@ -66,7 +66,7 @@ def _arm_run(periods: int | None = None, xml: Path = ARM_XML):
             out["torque"] = max(out["torque"], np.linalg.norm(torque - moment) / scale) if k else 0.0
         rep = coupler.couple()
         assert rep.converged, rep.message
-        out["tracking"] = max(out["tracking"], np.abs(d.qpos[7:10] - plan[k + 1]).max())
+        out["tracking"] = max(out["tracking"], np.abs(d.qpos[-3:] - plan[k + 1]).max())
     return m, d, scene, coupler, plan, out
 
 

@@ -64,5 +64,6 @@ def test_a_block_that_sticks_has_null_direction_deviation_and_release_and_rest_a
         if chunk.entity_path == "/run/phase":
             phases += batch.column("step").to_pylist()
     kinds = {t[0].split(":")[0]: s for s, t in markers}
-    assert kinds == {"release": steps[2]["step"], "rest": steps[-1]["step"]}
+    assert kinds == {"press": steps[0]["step"], "push": steps[1]["step"], "release": steps[2]["step"],
+                     "rest": steps[-1]["step"]}
     assert sorted(phases) == [s["step"] for s in steps]

@@ -31,6 +31,9 @@ fifth of it in yaw (measured 0.020 and 0.0065; the modifier's first correction o
 plan: 0.089 and 0.019)."""
 STATE_AGREE = 1e-9
 """The lag after the executed pushes, stepped one push at a time vs in one run, relative."""
+WARM_NLP_FRACTION = 0.27
+"""ipopt iterations of the warm re-plans' first NLP solve over the cold ones', at most (measured
+32 / 141 = 0.23; a warm start not shifted by the executed pushes: 47 / 141 = 0.33, issue 43)."""
 
 
 @pytest.fixture(scope="module")
@@ -56,17 +59,22 @@ def test_warm_replans_agree_with_cold_ones_and_reuse_the_nlp(setting):
     n_press = len(_press(model))
     session = PlanSession(model, spec, verify=False)
     session.follow(first)
+    nlp = {"warm": 0, "cold": 0}
     for pushes in (1, 2):
         obs = _observations(run, pushes, n_press)
         warm, start = replan(model, spec, obs, baseline=False, session=session)
         cold, _ = replan(model, spec, obs, baseline=False)
         assert warm.status == cold.status == "converged"
+        nlp["warm"] += warm.iterations[0].nlp_iterations
+        nlp["cold"] += cold.iterations[0].nlp_iterations
         remaining = spec.steps - pushes
         # the re-plan's rollouts are the remaining steps only, on the planning mesh
         assert warm.commands.shape == (remaining, 3) and warm.rollouts["verification"] == 0
         np.testing.assert_allclose(warm.commands, cold.commands, atol=COMMANDS_AGREE * spec.max_step)
         assert np.hypot(*(warm.verified.lower[-1] - cold.verified.lower[-1])[:2]) <= warm.spec.tolerance
         assert within_tolerance(warm.verified.lower[-1], warm.spec)
+    # the warm start is the last plan's remaining steps: far fewer ipopt iterations
+    assert nlp["warm"] <= WARM_NLP_FRACTION * nlp["cold"], nlp
     # built once: one calibration, one NLP, and no press re-run for the second push
     assert session.calibrations == 1 and session.nlp_builds == 1
     assert len(session.executed) == 2

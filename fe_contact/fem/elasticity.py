@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ._kernels import stvk_forces
 from .assembly import SparsityPattern, assemble_matrix, assemble_vector, element_dofs
 from .element import det3, gauss_hex, hex8_grad, inv3
-from .finite_strain import ELEMENTS, element_energy, element_forces, element_tangents
+from .finite_strain import checked_weight, element_energy, element_forces, element_tangents
 from .material import check_law, green_lagrange, stress
 from .mesh import BlockMesh
 
@@ -100,19 +100,19 @@ class ElementGeometry:
         ``dN_a/dX_J`` at each Gauss point, 1/m.
     dvol : ndarray, shape (n_elems, n_qp)
         ``det(dX/dxi) * weight``, m^3.
-    element : str
-        Formulation, one of :data:`fe_contact.fem.finite_strain.ELEMENTS`:
-        ``"hex8"`` (plain, the paper's) or ``"fbar"`` (F-bar, does not lock
-        as ``nu -> 0.5``).
+    element, fbar_weight : str, float
+        ``"hex8"`` (plain, the paper's; weight 0), ``"fbar"`` (F-bar, does not lock as
+        ``nu -> 0.5``; weight 1) or ``"fbar_blend"`` (``element="auto"`` between them, its
+        weight ``w`` in ``(J_bar / J)^(w/3)`` given): :func:`~fe_contact.fem.finite_strain.checked_weight`.
     """
 
     grad: np.ndarray
     dvol: np.ndarray
     element: str = "hex8"
+    fbar_weight: float | None = None
 
     def __post_init__(self) -> None:
-        if self.element not in ELEMENTS:
-            raise ValueError(f"element must be one of {ELEMENTS}, got {self.element!r}")
+        object.__setattr__(self, "fbar_weight", checked_weight(self.element, self.fbar_weight))
         grad = np.array(self.grad, dtype=np.float64)
         dvol = np.array(self.dvol, dtype=np.float64)
         if grad.ndim != 4 or grad.shape[2:] != (8, 3):
@@ -143,7 +143,8 @@ class ElementGeometry:
         return int(self.grad.shape[1])
 
 
-def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8") -> ElementGeometry:
+def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8",
+                     fbar_weight: float | None = None) -> ElementGeometry:
     """Precompute ``dN/dX`` and ``dV`` at the Gauss points of every element.
 
     Parameters
@@ -151,8 +152,8 @@ def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8"
     mesh : BlockMesh
     quadrature : int, default 3
         Gauss points per direction (3 -> 27 points, as in the paper; 2 -> 8).
-    element : str, default "hex8"
-        Formulation (``"hex8"`` or ``"fbar"``).
+    element, fbar_weight : str, default "hex8"; float, optional
+        Formulation and the blend's weight (:class:`ElementGeometry`).
 
     Returns
     -------
@@ -176,7 +177,7 @@ def element_geometry(mesh: BlockMesh, quadrature: int = 3, element: str = "hex8"
         raise ValueError(f"element {bad} has non-positive Jacobian determinant {det.min()}")
     inv = inv3(jac, det)  # dxi_d/dX_I, indexed [d, I]
     grad = np.einsum("qad,eqdI->eqaI", dndxi, inv, optimize=True)  # BLAS: 15x faster than unoptimised
-    return ElementGeometry(grad=grad, dvol=det * weights[None, :], element=element)
+    return ElementGeometry(grad=grad, dvol=det * weights[None, :], element=element, fbar_weight=fbar_weight)
 
 
 def _check_state(geometry: ElementGeometry, elements, U, material: Material):
@@ -308,7 +309,7 @@ def stored_energy(geometry: ElementGeometry, elements, U, material: Material) ->
     elements, U = _check_state(geometry, elements, U, material)
     if not _plain_stvk(geometry, material):
         return float(element_energy(geometry.grad, geometry.dvol, U[elements], material.model,
-                                    material.lame_lambda, material.lame_mu, geometry.element == "fbar").sum())
+                                    material.lame_lambda, material.lame_mu, geometry.fbar_weight).sum())
     _, E = _strain_state(geometry, elements, U)  # component-major, points in (e, q) order
     E = E.reshape(9, -1)
     trace = E[0] + E[4] + E[8]
@@ -346,7 +347,7 @@ def internal_force(
     elements, U = _check_state(geometry, elements, U, material)
     if not _plain_stvk(geometry, material):
         fe, min_det = element_forces(geometry.grad, geometry.dvol, U[elements], material.model,
-                                     material.lame_lambda, material.lame_mu, geometry.element == "fbar")
+                                     material.lame_lambda, material.lame_mu, geometry.fbar_weight)
         return assemble_vector(elements, fe, U.shape[0]), min_det
     return _stvk_force(geometry, elements, U, material)
 
@@ -354,7 +355,7 @@ def internal_force(
 def _plain_stvk(geometry: ElementGeometry, material: Material) -> bool:
     """The paper's St Venant-Kirchhoff hex8, computed by this module's own
     (faster) kernels; other laws and elements by :mod:`fe_contact.fem.finite_strain`."""
-    return material.model == "stvk" and geometry.element == "hex8"
+    return material.model == "stvk" and geometry.fbar_weight == 0.0
 
 
 def _stvk_force(geometry: ElementGeometry, elements: np.ndarray, U: np.ndarray,
@@ -481,7 +482,7 @@ def internal_force_and_tangent(
         raise ValueError("pattern was built for a different connectivity than elements")
     if not _plain_stvk(geometry, material):
         fe, Ke, min_det = element_tangents(geometry.grad, geometry.dvol, U[elements], material.model,
-                                           material.lame_lambda, material.lame_mu, geometry.element == "fbar",
+                                           material.lame_lambda, material.lame_mu, geometry.fbar_weight,
                                            tension_only_geometric)
         return assemble_vector(elements, fe, U.shape[0]), assemble_matrix(pattern, Ke), min_det
     f_int, min_det = _stvk_force(geometry, elements, U, material)

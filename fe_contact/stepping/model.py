@@ -17,7 +17,7 @@ import numpy as np
 
 from ..fem.assembly import SparsityPattern, sparsity_pattern
 from ..fem.elasticity import ElementGeometry, Material, element_geometry
-from ..fem.finite_strain import resolve_element
+from ..fem.finite_strain import fbar_weight, resolve_element
 from ..linalg.cholesky import SupernodalStructure, supernodal_structure
 from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_volumes
 from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
@@ -166,8 +166,11 @@ class Model:
     displacement control)."""
     element: str = "auto"
     """Element formulation (:data:`fe_contact.fem.finite_strain.ELEMENTS`):
-    ``"hex8"``, ``"fbar"`` (does not lock as nu -> 0.5), or ``"auto"`` (F-bar for
-    ``poisson > AUTO_FBAR_POISSON``, 0.45); the resolved name after construction."""
+    ``"hex8"``, ``"fbar"`` (does not lock as nu -> 0.5), or ``"auto"`` (hex8 up to
+    ``poisson = AUTO_HEX8_POISSON``, 0.45, F-bar from ``AUTO_FBAR_POISSON``, 0.48, and
+    between them ``"fbar_blend"``, the F-bar family member whose weight rises smoothly
+    with nu: :func:`~fe_contact.fem.finite_strain.auto_fbar_weight`); the resolved name
+    after construction (its weight: ``geometry.fbar_weight``)."""
     contacts: ContactSet = field(init=False, repr=False)
     """Every contact body's contacts (the floor's first, then the pad's)."""
     contact_dofs: np.ndarray = field(init=False, repr=False)
@@ -219,7 +222,8 @@ class Model:
         mesh = self.mesh
         set_ = object.__setattr__
         set_(self, "element", resolve_element(self.element, self.material.poisson))
-        set_(self, "geometry", element_geometry(mesh, self.quadrature, self.element))
+        set_(self, "geometry", element_geometry(mesh, self.quadrature, self.element,
+                                                fbar_weight(self.element, self.material.poisson)))
         set_(self, "pattern", sparsity_pattern(mesh.elements, mesh.n_nodes))
         upper_dofs = (3 * mesh.upper[:, None] + np.arange(3)).ravel()
         if not self.hold_upper or self.pad is not None:

@@ -44,7 +44,12 @@ import scipy.linalg as sla
 from ..contact.friction import frame_derivative
 from ..contact.law_jacobian import law_jacobian
 from ..fem.assembly import assemble_vector
-from ..fem.finite_strain import element_force_moduli_derivatives
+from ..fem.finite_strain import (
+    AUTO_ELEMENT,
+    auto_fbar_weight_slope,
+    element_force_moduli_derivatives,
+    element_force_weight_derivative,
+)
 from ..fem.loads import body_force
 from .held import held_loading
 from .model import Model, NodeStatus
@@ -221,18 +226,25 @@ class HeldLinearisation:
         """``d f_int / dE`` and ``d f_int / dnu`` at ``U`` (n_dofs,), N/Pa and N (computed once):
         the forces' derivatives in the Lame moduli at fixed ``U`` (any law, either element,
         :func:`~fe_contact.fem.finite_strain.element_force_moduli_derivatives`) by the chain rule,
-        ``lambda = E nu / ((1 + nu)(1 - 2 nu))``, ``mu = E / (2 (1 + nu))``."""
+        ``lambda = E nu / ((1 + nu)(1 - 2 nu))``, ``mu = E / (2 (1 + nu))``, and for
+        ``element="auto"`` between hex8 and F-bar the weight's ``dw/dnu df/dw``
+        (:func:`~fe_contact.fem.finite_strain.element_force_weight_derivative`)."""
         if getattr(self, "_material", None) is not None:
             return self._material
         model, mat = self.model, self.model.material
         elements = model.mesh.elements
         d = element_force_moduli_derivatives(model.geometry.grad, model.geometry.dvol, self.U[elements], mat.model,
-                                             mat.lame_lambda, mat.lame_mu, model.geometry.element == "fbar")
+                                             mat.lame_lambda, mat.lame_mu, model.geometry.fbar_weight)
         f_lam, f_mu = (assemble_vector(elements, x, model.mesh.n_nodes) for x in d)
         E, nu = mat.young, mat.poisson
         dlam_dnu = E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) ** 2 * (1.0 - 2.0 * nu) ** 2)
         dmu_dnu = -E / (2.0 * (1.0 + nu) ** 2)
-        self._material = (mat.lame_lambda * f_lam + mat.lame_mu * f_mu) / E, dlam_dnu * f_lam + dmu_dnu * f_mu
+        f_nu = dlam_dnu * f_lam + dmu_dnu * f_mu
+        if model.geometry.element == AUTO_ELEMENT:  # element="auto"'s weight moves with nu
+            d_w = element_force_weight_derivative(model.geometry.grad, model.geometry.dvol, self.U[elements],
+                                                  mat.model, mat.lame_lambda, mat.lame_mu, model.geometry.fbar_weight)
+            f_nu = f_nu + auto_fbar_weight_slope(nu) * assemble_vector(elements, d_w, model.mesh.n_nodes)
+        self._material = (mat.lame_lambda * f_lam + mat.lame_mu * f_mu) / E, f_nu
         return self._material
 
 

@@ -22,17 +22,19 @@ def print_steps(steps) -> None:
     """The step table of :class:`~pushplan.run.StepSummary` rows (mm, degrees, N); the
     lower face's direction deviation ("lower dev.", from the upper face's direction) is
     ``-`` while the lower face sticks (:func:`~pushplan.cli.units.deviation_text`); release
-    steps are marked ``R``."""
+    steps are marked ``R``; with a frictional pad, its slip over the upper face ("pad slip")."""
     from .units import deviation_text, engineering
 
+    pad = any(s.pad_slip is not None for s in steps)
     print(f"{'step':>5} {'upper x,y (mm)':>18} {'lower x,y (mm)':>18} {'lower dev.':>10} {'yaw':>9} "
-          f"{'normal force':>12} {'max slip':>9} {'newton':>6} {'contact':>7}")
+          f"{'normal force':>12} {'max slip':>9}" + (f" {'pad slip':>9}" if pad else "") + f" {'newton':>6} {'contact':>7}")
     for s in steps:
         u, lo = s.upper_centroid, s.lower_centroid
         mark = "R" if s.phase == "release" else " "
+        pad_text = "" if not pad else f" {s.pad_slip*1e3:>7.4f}mm" if s.pad_slip is not None else f" {'-':>9}"
         print(f"{s.step:>4}{mark} {u[0]*1e3:>8.4f},{u[1]*1e3:>8.4f} {lo[0]*1e3:>8.4f},{lo[1]*1e3:>8.4f} "
               f"{deviation_text(s):>10} {s.lower_yaw_deg:>8.4f}° {engineering(s.normal_force, 'N'):>12} "
-              f"{s.max_slip*1e3:>7.4f}mm {s.newton_iterations:>6} {s.contact_iterations:>7}")
+              f"{s.max_slip*1e3:>7.4f}mm{pad_text} {s.newton_iterations:>6} {s.contact_iterations:>7}")
 
 
 def print_rest(summary) -> None:
@@ -43,7 +45,9 @@ def print_rest(summary) -> None:
     lo = rest.lower_centroid
     print(f"{'at rest' if rest.settled else 'NOT settled'} after the {rest.mode} release (step {rest.step}, R = release steps): lower face ({lo[0]*1e3:.4f}, {lo[1]*1e3:.4f}) mm, "
           f"yaw {rest.lower_yaw_deg:.4f}°, normal force {rest.normal_force:.4g} N, "
-          f"strain energy {rest.strain_energy:.3g} J (the steps before the release are the loaded poses)")
+          f"strain energy {rest.strain_energy:.3g} J (the steps before the release are the loaded poses)"
+          + (f"; the pad had slid {rest.pad_slip * 1e3:.4g} mm over the upper face when it let go"
+             if rest.pad_slip is not None else ""))
 
 
 def exit_status(run) -> int:
@@ -94,6 +98,8 @@ def cmd_simulate(args) -> int:
         run = simulate(scenario, out.path, commands=commands, model=model, progress=not args.quiet,
                        recording=not args.no_recording, export_fclib=fclib.path if fclib else None,
                        observers=observers)
+    for warning in run.summary.warnings:  # --quiet keeps warnings
+        print(f"pushplan: warning: {warning}", file=sys.stderr)
     if not args.quiet:
         print_steps(run.summary.steps)
         print_rest(run.summary)

@@ -9,7 +9,7 @@ A scenario reads::
     elements = [20, 20, 5]                    # nx, ny, nz
     quadrature = 3                            # Gauss points per direction (2 or 3)
     element = "auto"                          # optional: "hex8", "fbar" (does not lock as nu -> 0.5) or
-                                              # "auto" (fbar for poisson > 0.45); docs/materials.md
+                                              # "auto" (hex8 to nu 0.45, fbar from 0.48, blended); docs/materials.md
     [material]
     young = 210e9                             # Pa
     poisson = 0.3
@@ -57,7 +57,7 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fe_contact import (AUTO_FBAR_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
+from fe_contact import (AUTO_HEX8_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
                         Model, MU_MAX, ERROR_TOL_REMOVED, Release, SolverOptions, block_mesh)
 
 from ..errors import InputError, InputWarning
@@ -370,7 +370,7 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)
-    if scenario.element == "hex8" and scenario.poisson > AUTO_FBAR_POISSON:
+    if scenario.element == "hex8" and scenario.poisson > AUTO_HEX8_POISSON:
         warnings.warn(InputWarning(
             f"block.element = \"hex8\" with material.poisson = {scenario.poisson:g} locks: too stiff, the more so "
             f"as poisson -> 0.5 (press force 9.5x the converged one at 0.499 on 4x4x2); use \"fbar\" or \"auto\""),

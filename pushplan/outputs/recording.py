@@ -36,10 +36,18 @@ Entities (``Archetype:field`` columns in the file)::
     plots/lower_yaw_deg, plots/normal_force (N), plots/tangential_force (N, x and y:
     the floor's friction force on the block), plots/gripper_force (N, x, y, z: the
     force the gripper applies on the upper face, what a wrist force sensor reads),
-    plots/newton_iterations, plots/contact_iterations    Scalars per step.
-    run/phase            AnyValues per step: ``phase`` = ``command`` or ``release``.
-    markers              TextLog: ``release`` at the first release step, ``rest`` at
-                         the step where the block is at rest (:meth:`Recorder.log_rest`).
+    plots/newton_iterations, plots/contact_iterations    Scalars per step;
+    plots/pad_slip (m, a frictional pad's slip over the upper face, summary.json's
+    ``pad_slip``; no point for a bonded pad).
+    run/phase            AnyValues per step: ``phase`` = ``command`` or ``release`` (as in
+                         summary.json) and ``label``: ``press`` (a command that only
+                         lowers the gripper), ``push`` (any other moving command),
+                         ``hold`` (a zero command) or ``release``.
+    markers              TextLog: one line where each labelled phase starts (``press:``,
+                         ``push:``, ``hold:``, ``release:``), ``rest:`` at the step where
+                         the block is at rest (:meth:`Recorder.log_rest`), a plan's verified
+                         rest pose (:meth:`Recorder.log_rest_pose`) and the run's warnings
+                         (:meth:`Recorder.log_warning`, level WARN).
     log                  TextLog: one line per step, errors for failed steps.
     run/info             TextDocument (static): JSON ``{"run_name", "field", "scenario"}``.
     run/step             AnyValues per step: the command ``dx, dy, dz`` (m),
@@ -94,6 +102,7 @@ from fe_contact import surface_quads
 
 from ..config.commands import command_to_dict
 from . import recording_scene as scene
+from .recording_plan import PlanOverlays
 from .atomic import commit_temporary, reserve_temporary
 
 RECORDING_FILE = "recording.rrd"
@@ -112,8 +121,18 @@ _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], 
 _GREY = np.array([170, 170, 170], np.uint8)
 _STATUS_CLASSES = ((0, "stick", (40, 160, 70)), (1, "slip", (230, 120, 20)), (2, "separated", (140, 140, 140)))
 _PLOTS = ("lower_direction_deviation_deg", "lower_yaw_deg", "normal_force", "tangential_force", "gripper_force",
-          "newton_iterations", "contact_iterations")
+          "newton_iterations", "contact_iterations", "pad_slip")
 _PLOT_SOURCE = {"gripper_force": "upper_force"}  # plot name -> StepSummary attribute, where they differ
+
+
+def phase_label(phase: str, command) -> str:
+    """The recording's phase label of a step (module docstring): ``release``, or for a
+    command ``press`` (only a lowering ``dz``), ``hold`` (zero) or ``push``."""
+    if phase == "release":
+        return "release"
+    if command.dx == 0 and command.dy == 0 and command.dtheta == 0:
+        return "press" if command.dz < 0 else "hold" if command.dz == 0 else "push"
+    return "push"
 
 
 def _degrees_text(value: float | None) -> str:
@@ -151,16 +170,7 @@ def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return normals / np.linalg.norm(normals, axis=1, keepdims=True)
 
 
-def _poses(name: str, value) -> np.ndarray:
-    a = np.asarray(value, dtype=float)
-    if a.ndim != 2 or a.shape[1] not in (2, 3) or a.shape[0] < 1:
-        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
-
-
-class Recorder:
+class Recorder(PlanOverlays):
     """rerun recording of one run (see the module docstring for its content).
 
     Parameters
@@ -387,10 +397,12 @@ class Recorder:
             if value is not None:  # a sticking lower face has no direction: no point
                 log(f"plots/{p}", rr.Scalars(np.atleast_1d(np.asarray(value, float))))
         phase = getattr(summary, "phase", "command")
-        log("run/phase", rr.AnyValues(phase=phase))
-        if phase == "release" and self._phase != "release":
-            log("markers", rr.TextLog(f"release: step {report.step_index} is the first release step"))
-        self._phase = phase
+        label = phase_label(phase, c)
+        log("run/phase", rr.AnyValues(phase=phase, label=label))
+        if label != self._phase:
+            log("markers", rr.TextLog(f"release: step {report.step_index} is the first release step"
+                                      if label == "release" else f"{label}: from step {report.step_index}"))
+        self._phase = label
         log("run/step", rr.AnyValues(
             **command_to_dict(c),
             lower_centroid=np.asarray(report.lower_centroid, float),
@@ -402,62 +414,6 @@ class Recorder:
             f"lower yaw {summary.lower_yaw_deg:.4f} deg, N {summary.normal_force:.6g} N, "
             f"newton {report.newton_iterations}, contact {report.contact_iterations}",
             level=rr.TextLogLevel.INFO))
-
-    # -- plans -------------------------------------------------------------------------
-    def log_plan(self, target=None, predicted=None, verified=None, naive=None, cost=None,
-                 first_step: int | None = None) -> None:
-        """Log a plan (see the module docstring for shapes and units).
-
-        With ``first_step`` (the step index of pose row 0, e.g. the number of press
-        steps), the overlays follow the step timeline: at step ``first_step + k`` the
-        paths up to row ``k`` and the target; without it they are static.
-
-        Raises
-        ------
-        ValueError
-            A pose array of the wrong shape or with non-finite values.
-        """
-        rr = self._rr
-        if self._closed:
-            raise ValueError(f"recording {self.path} is closed")
-        size = self.mesh.size
-        arrow = 0.25 * min(size[0], size[1])
-        overlays = {name: _poses(name, value) for name, value in
-                    (("predicted", predicted), ("verified", verified), ("naive", naive)) if value is not None}
-        box = None
-        if target is not None:
-            t = np.asarray(target, float).ravel()
-            if t.shape not in ((2,), (3,)) or not np.all(np.isfinite(t)):
-                raise ValueError(f"target must be (x, y) or (x, y, yaw) finite numbers, got {target!r}")
-            box = scene.target_box(rr, size, t)
-        rows = max((len(p) for p in overlays.values()), default=1)
-        self.stream.disable_timeline("load")  # plan rows are steps, not travel
-        for k in ([None] if first_step is None else range(rows)):
-            if k is not None:
-                self.stream.set_time("step", sequence=int(first_step + k))
-            if box is not None:
-                self.stream.log("plan/target", box, static=k is None)
-            for name, poses in overlays.items():
-                shown = poses if k is None else poses[:k + 1]
-                self.stream.log(f"plan/{name}", *scene.pose_path(rr, name, shown, arrow), static=k is None)
-        if cost is not None:
-            c = np.asarray(cost, float).ravel()
-            if c.size == 0:
-                raise ValueError("cost must hold at least one value")
-            self.stream.send_columns(
-                "plots/planner_cost",
-                indexes=[rr.TimeColumn("planner_iteration", sequence=np.arange(c.size))],
-                columns=rr.Scalars.columns(scalars=c),
-            )
-            self.stream.send_blueprint(self._blueprint(plan=True), make_active=False, make_default=True)
-
-    def log_path(self, name: str, poses, colour=(160, 80, 220)) -> None:
-        """Log lower-face poses ``(n, 2 or 3)`` (m, rad) as ``plan/<name>`` at the current step
-        (after :meth:`log_step`): a path that changes along the run."""
-        xy = _poses(name, poses)[:, :2]
-        xyz = np.column_stack([xy, np.zeros(len(xy))])
-        self.stream.log(f"plan/{name}", self._rr.LineStrips3D([xyz], colors=[colour], labels=[name]),
-                        self._rr.Points3D(xyz, colors=[colour]))
 
     def _flush(self) -> None:
         """Flush the stream (a full disk is an OSError, :func:`_writing`)."""
@@ -473,6 +429,14 @@ class Recorder:
         self.stream.log("markers", self._rr.TextLog(
             f"rest: after the {rest.mode} release, step {rest.step}, lower face ({lo[0]:.6g}, {lo[1]:.6g}) m, "
             f"yaw {rest.lower_yaw_deg:.6g} deg"))
+        self._flush()
+
+    def log_warning(self, text: str, step: int | None = None) -> None:
+        """A warning of the run (e.g. :func:`pushplan.run.summary.pad_slip_warning`) on the
+        ``markers`` log at ``step`` (default: the current one), level WARN."""
+        if step is not None:
+            self._set_step(step)
+        self.stream.log("markers", self._rr.TextLog(text, level=self._rr.TextLogLevel.WARN))
         self._flush()
 
     def close(self) -> Path:

@@ -13,6 +13,7 @@ from ..config.commands import commands_to_list, planar_commands
 from ..config.fingerprint import scenario_fingerprint
 from ..config.plan import PlanSpec
 from ..config.scenario import pad_friction_dict
+from ..run.summary import StepSummary
 from .result import PlanResult
 from .target import pose_error
 
@@ -130,21 +131,30 @@ def recording_job(result: PlanResult, path, mesh: BlockMesh) -> tuple:
     (:meth:`~pushplan.config.scenario.Scenario.mesh`, no model needed)."""
     spec = result.spec
     resolved = {**result.scenario.to_dict(), "load": plan_commands_json(result)}
-    reports = (*result.press_reports, *result.verified.reports)
-    steps = (*result.press_steps, *result.verified.steps)  # built once, by the driver
+    released = tuple(r for r in result.verified.release_reports if r.converged)
+    reports = (*result.press_reports, *result.verified.reports, *released)
+    steps = (*result.press_steps, *result.verified.steps,  # built once, by the driver
+             *(StepSummary.from_report(r, "release") for r in released))
     dims = 3 if spec.yaw_targeted else 2
     overlay = dict(target=np.array(spec.target)[:dims], predicted=result.solution.lower[:, :dims],
                    verified=result.verified.lower[:, :dims],
                    naive=None if result.naive is None else result.naive.lower[:, :dims],
                    cost=[it.objective for it in result.iterations], first_step=len(result.press_reports))
+    rest = None
+    if result.verified.rest is not None and released:  # the verified release, its rest pose beside the target
+        rest = dict(step=released[-1].step_index, loaded=result.verified.lower[-1][:dims],
+                    rest=np.asarray(result.verified.rest)[:dims])
     return _write_plan_recording, (path, f"plan_{result.scenario.name}", mesh, resolved,
-                                   reports, steps, overlay)
+                                   reports, steps, overlay, rest)
 
 
-def _write_plan_recording(path, name: str, mesh, resolved: dict, reports, steps, overlay: dict) -> None:
+def _write_plan_recording(path, name: str, mesh, resolved: dict, reports, steps, overlay: dict,
+                          rest: dict | None = None) -> None:
     from ..outputs.recording import Recorder
 
     with Recorder(path, name, mesh, scenario=resolved) as rec:
         for rep, summary in zip(reports, steps, strict=True):
             rec.log_step(rep, summary)
         rec.log_plan(**overlay)
+        if rest is not None:
+            rec.log_rest_pose(**rest)

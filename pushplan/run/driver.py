@@ -26,6 +26,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from fe_contact import Command, Model, Release, State, StepReport, StepSequence, rest_check, step
 
 from ..config.scenario import pad_friction_dict
@@ -126,7 +128,7 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
             if release is not None and run.reports:
                 rest = rest_check(model, run.state, run.reports[-1], sequence.schedule, step)
                 run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
-                                                           pad_friction_dict(model.pad))
+                                                           pad_friction_dict(model.pad), _pad_slip_at_release(run))
                 _unsettled_is_a_failure(run.summary, run.reports[-1].step_index)
         run.summary.elapsed_s = time.perf_counter() - t0
         _call(observers, "finish", run)
@@ -146,10 +148,17 @@ def _unsettled_is_a_failure(summary: RunSummary, last_step: int) -> None:
                                   f"the block did not settle after the release: {rest.reason}")
 
 
+def _pad_slip_at_release(run: Run) -> float | None:
+    """:attr:`RestSummary.pad_slip`: the pad's slip at the last step it still touched."""
+    touching = [s.pad_slip for s, r in zip(run.summary.steps, run.converged_reports, strict=True)
+                if s.pad_slip is not None and np.any(r.pad_reaction[:, 0] != 0.0)]
+    return touching[-1] if touching else (run.summary.steps[-1].pad_slip if run.summary.steps else None)
+
+
 def _record(run: Run, new_state: State, report: StepReport, keep_states: bool, phase: str) -> None:
     if report.converged:
         run.state = new_state
-        run.summary.steps.append(StepSummary.from_report(report, phase))
+        run.summary.steps.append(StepSummary.from_report(report, phase, new_state.upper_translation))
         if keep_states:
             run.states.append(new_state)
     else:

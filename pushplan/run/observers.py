@@ -71,6 +71,8 @@ class RecordingFile:
     def finish(self, run) -> None:
         if run.summary.rest is not None:
             self.recorder.log_rest(run.summary.rest)
+        for warning in run.summary.warnings:
+            self.recorder.log_warning(warning)
 
     def close(self, run) -> None:
         self.recorder.close()

@@ -26,6 +26,13 @@ Names in ``summary.json`` (per step):
     (deprecated: read ``lower_direction_deviation_deg``).  The sweep's *lag* angle
     (direction of the upper-minus-lower displacement) is a different quantity,
     ``lag_angle_deg`` in the sweep table.
+``pad_slip``
+    A frictional pad's slip over the upper face, m: the in-plane distance between the
+    pad's commanded position and the upper face's centroid (the offset the pad has slid
+    since it touched); ``null`` for a bonded pad, which the upper face follows.
+    ``rest.pad_slip`` is that offset at the last step the pad still touched (how far it
+    had slid when it let go).  ``warnings`` (top level, when any) holds
+    :func:`pad_slip_warning`'s line.
 ``phase``
     ``command`` for a scenario load step, ``release`` for a step of the release that
     follows; ``rest.step`` (with a release) is the step at which the block is at rest.
@@ -48,6 +55,10 @@ from fe_contact import Command, NodeStatus, Rest, StepReport
 
 from ..config.commands import command_from_dict, command_to_dict
 
+PAD_SLIP_WARN = 0.5
+"""A pad that slid more than this fraction of the commanded in-plane travel gets a warning:
+it slides over the block rather than dragging it (the reduced model and a bonded gripper
+assume it drags)."""
 DIRECTION_MIN_MOTION = 0.01
 """Lower-face travel, as a fraction of the upper face's, below which the block sticks and
 the lower face's direction deviation (the angle between the two travels) is the
@@ -90,6 +101,8 @@ class StepSummary:
     min_det_f: float
     wall_time_s: float
     phase: str = "command"
+    pad_slip: float | None = None
+    """m, a frictional pad's slip over the upper face (module docstring); None when bonded."""
 
     @property
     def converged(self) -> bool:
@@ -114,7 +127,9 @@ class StepSummary:
         return self.twist_deg
 
     @classmethod
-    def from_report(cls, report: StepReport, phase: str = "command") -> StepSummary:
+    def from_report(cls, report: StepReport, phase: str = "command", pad_at=None) -> StepSummary:
+        """``pad_at``: the gripper's commanded translation after the step (3,), m (the new
+        state's ``upper_translation``), for :attr:`pad_slip`."""
         in_contact = report.node_status != NodeStatus.SEPARATED
         p = report.pressure[in_contact]
         return cls(
@@ -129,7 +144,7 @@ class StepSummary:
             dissipation=float(report.dissipation), newton_iterations=report.newton_iterations,
             contact_iterations=report.contact_iterations, newton_residual=float(report.newton_residual),
             contact_residual=float(report.contact_residual), min_det_f=float(report.min_det_f),
-            wall_time_s=float(report.wall_time), phase=phase,
+            wall_time_s=float(report.wall_time), phase=phase, pad_slip=pad_slip(report, pad_at),
         )
 
     def to_dict(self) -> dict:
@@ -147,7 +162,7 @@ class StepSummary:
             "dissipation": self.dissipation, "newton_iterations": self.newton_iterations,
             "contact_iterations": self.contact_iterations, "newton_residual": self.newton_residual,
             "contact_residual": self.contact_residual, "min_det_f": self.min_det_f,
-            "wall_time_s": self.wall_time_s, "phase": self.phase,
+            "wall_time_s": self.wall_time_s, "phase": self.phase, "pad_slip": self.pad_slip,
         }
 
     @classmethod
@@ -199,19 +214,22 @@ class RestSummary:
     further_motion: float = 0.0
     gripper_friction: str | dict = "bonded"
     """The pad's friction the rest pose assumes: "bonded" or {mu_x, mu_y, angle_deg}."""
+    pad_slip: float | None = None
+    """m, how far a frictional pad had slid over the upper face when it let go; None when bonded."""
 
     @property
     def settled(self) -> bool:
         return self.status == "settled"
 
     @classmethod
-    def from_report(cls, report: StepReport, mode: str, rest: Rest, gripper_friction="bonded") -> RestSummary:
+    def from_report(cls, report: StepReport, mode: str, rest: Rest, gripper_friction="bonded",
+                    pad_slip: float | None = None) -> RestSummary:
         return cls(mode=mode, step=report.step_index, lower_centroid=_floats(report.lower_centroid),
                    lower_yaw=float(report.lower_yaw),
                    upper_centroid=_floats(report.upper_centroid), normal_force=float(report.normal_force),
                    tangential_force=_floats(report.tangential_force), strain_energy=float(report.strain_energy),
                    status=rest.status, reason=rest.reason, pad_force=rest.pad_force,
-                   further_motion=rest.further_motion, gripper_friction=gripper_friction)
+                   further_motion=rest.further_motion, gripper_friction=gripper_friction, pad_slip=pad_slip)
 
     @property
     def lower_yaw_deg(self) -> float:
@@ -222,7 +240,8 @@ class RestSummary:
                 "upper_centroid": list(self.upper_centroid), "normal_force": self.normal_force,
                 "tangential_force": list(self.tangential_force), "strain_energy": self.strain_energy,
                 "status": self.status, "step": self.step, "reason": self.reason, "pad_force": self.pad_force,
-                "further_motion": self.further_motion, "gripper_friction": self.gripper_friction}
+                "further_motion": self.further_motion, "gripper_friction": self.gripper_friction,
+                "pad_slip": self.pad_slip}
 
     @classmethod
     def from_dict(cls, d: dict) -> RestSummary:
@@ -232,7 +251,7 @@ class RestSummary:
                    strain_energy=float(d["strain_energy"]), status=d["status"], step=d.get("step"),
                    reason=d.get("reason", ""), pad_force=float(d.get("pad_force", 0.0)),
                    further_motion=float(d.get("further_motion", 0.0)),
-                   gripper_friction=d.get("gripper_friction", "bonded"))
+                   gripper_friction=d.get("gripper_friction", "bonded"), pad_slip=d.get("pad_slip"))
 
 
 @dataclass
@@ -250,10 +269,17 @@ class RunSummary:
     def completed(self) -> bool:
         return self.status is RunStatus.COMPLETED
 
+    @property
+    def warnings(self) -> list[str]:
+        """Warnings about what the run's numbers mean (:func:`pad_slip_warning`)."""
+        return [w for w in (pad_slip_warning(self.steps),) if w]
+
     def to_dict(self) -> dict:
         d = {"scenario": self.scenario, "elapsed_s": self.elapsed_s, "status": self.status.value,
              "failure": None if self.failure is None else self.failure.to_dict(),
              "steps": [s.to_dict() for s in self.steps]}
+        if self.warnings:
+            d["warnings"] = self.warnings
         return d if self.rest is None else {**d, "rest": self.rest.to_dict()}
 
     @classmethod
@@ -263,6 +289,31 @@ class RunSummary:
                    status=RunStatus(d["status"]), failure=None if failure is None else Failure(**failure),
                    elapsed_s=float(d["elapsed_s"]),
                    rest=RestSummary.from_dict(d["rest"]) if d.get("rest") else None)
+
+
+def pad_slip(report: StepReport, pad_at) -> float | None:
+    """A frictional pad's slip over the upper face after ``report``'s step, m: the in-plane
+    distance between the pad's commanded position ``pad_at`` (3,) and the upper face's
+    centroid; None for a bonded pad (no pad contacts) or without ``pad_at``."""
+    if report.pad_reaction.shape[0] == 0 or pad_at is None:
+        return None
+    return float(math.hypot(*(np.asarray(pad_at[:2], float) - np.asarray(report.upper_centroid[:2], float))))
+
+
+def pad_slip_warning(steps) -> str | None:
+    """A line when a frictional pad slid more than :data:`PAD_SLIP_WARN` of the commanded
+    in-plane travel over the command steps (``steps``: :class:`StepSummary` rows), else None."""
+    loaded = [s for s in steps if s.phase == "command" and s.pad_slip is not None]
+    if not loaded:
+        return None
+    last = loaded[-1]
+    commanded = math.hypot(sum(s.command.dx for s in loaded), sum(s.command.dy for s in loaded))
+    if commanded <= 0 or last.pad_slip <= PAD_SLIP_WARN * commanded:
+        return None
+    moved = math.hypot(*last.upper_centroid[:2])
+    return (f"the pad slid {last.pad_slip * 1e3:.3g} mm over the upper face of the {commanded * 1e3:.3g} mm "
+            f"commanded in the plane (the upper face moved {moved * 1e3:.3g} mm): the pad's friction does not drag "
+            f"the block; the poses are of a sliding pad, not of a held block")
 
 
 def _floats(a) -> tuple[float, ...]:
