@@ -27,6 +27,8 @@ MAX_PLAN_STEPS = 500
 """``[plan] steps``: commands of a plan (the NLP grows with them)."""
 MAX_ROLLOUTS = 100
 """``[plan] max_rollouts`` (default 6): FE rollouts of the planner's outer loop."""
+MAX_EPISODES = 10
+"""``[plan] episodes`` (default 3): grasp, push and release cycles of ``closed-loop`` to a rest target."""
 MAX_SUGGEST = 36
 """``identify --suggest N``: one push per 10 degrees."""
 MAX_LEVELS = 8
