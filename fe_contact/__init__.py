@@ -36,6 +36,7 @@ This package knows nothing about planning, robots, MuJoCo or rerun.
 from .fem.elasticity import Material
 from .contact.friction import MU_MAX, local_frame, project_elliptic_cone
 from .fem.loads import GRAVITY, Gripper
+from .contact.bodies import FOOTPRINT_SHAPES, Footprint
 from .contact.local_solver import solve_local
 from .fem.finite_strain import AUTO_HEX8_POISSON, ELEMENTS
 from .fem.material import LAWS
@@ -86,6 +87,8 @@ __all__ = [
     "Command",
     "ELEMENTS",
     "face_centroid_displacement",
+    "Footprint",
+    "FOOTPRINT_SHAPES",
     "Friction",
     "GRAVITY",
     "Gripper",

@@ -31,6 +31,8 @@ MAX_ROBUST_ITERATIONS = 100
 """``[plan] robust.max_iterations`` (default 8): sigma-point evaluations of the robust refinement."""
 MAX_MONTE_CARLO = 100_000
 """``[plan] robust.monte_carlo`` (default 50): truths of the robust plan's Monte Carlo check."""
+MAX_EPISODES = 10
+"""``[plan] episodes`` (default 3): grasp, push and release cycles of ``closed-loop`` to a rest target."""
 MAX_SUGGEST = 36
 """``identify --suggest N``: one push per 10 degrees."""
 MAX_LEVELS = 8

@@ -29,7 +29,9 @@ import numpy as np
 
 from .friction import local_frame
 
-__all__ = ["ContactBody", "ContactSet", "horizontal_frame", "stack_bodies"]
+__all__ = ["FOOTPRINT_SHAPES", "ContactBody", "ContactSet", "Footprint", "horizontal_frame", "stack_bodies"]
+
+FOOTPRINT_SHAPES = ("rectangle", "disc")
 
 
 def horizontal_frame(up: bool, angle: float) -> np.ndarray:
@@ -41,6 +43,74 @@ def horizontal_frame(up: bool, angle: float) -> np.ndarray:
     ``t_y`` reversed for a pad."""
     T = local_frame(angle)
     return T if up else T * np.array([[-1.0], [1.0], [-1.0]])
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """The gripper pad's footprint on the block's upper face: the upper-face
+    nodes under it are the ones the pad touches (held by a bonded pad,
+    contacts of a frictional one); the rest of the face is free.
+
+    A node of reference position ``(x, y)`` is under the pad when
+
+        rectangle:  |x - c_x| <= a_x / 2 + eps  and  |y - c_y| <= a_y / 2 + eps,
+        disc:       |(x, y) - c| <= r + eps,
+
+    ``c`` = the face's centre + ``offset``, ``eps = 1e-9`` of the face's
+    larger side (a node on the pad's edge is under it).
+
+    Parameters
+    ----------
+    shape : str
+        ``"rectangle"`` or ``"disc"`` (:data:`FOOTPRINT_SHAPES`).
+    size : (2,) float
+        Rectangle: its sides ``(a_x, a_y)`` along world x, y, m; disc: its
+        diameter twice ``(2 r, 2 r)``, m.  > 0.
+    offset : (2,) float
+        Pad centre from the upper face's centre, m (default centred).
+    """
+
+    shape: str
+    size: tuple[float, float]
+    offset: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self):
+        if self.shape not in FOOTPRINT_SHAPES:
+            raise ValueError(f"shape must be one of {FOOTPRINT_SHAPES}, got {self.shape!r}")
+        for name, lo in (("size", 0.0), ("offset", None)):
+            v = tuple(float(x) for x in np.ravel(getattr(self, name)))
+            if len(v) != 2 or not all(math.isfinite(x) for x in v) or (lo is not None and min(v) <= lo):
+                raise ValueError(f"{name} must be 2 finite numbers{' > 0' if lo is not None else ''} (m), "
+                                 f"got {getattr(self, name)!r}")
+            object.__setattr__(self, name, v)
+        if self.shape == "disc" and self.size[0] != self.size[1]:
+            raise ValueError(f"a disc's size is its diameter twice, got {self.size!r}")
+
+    def select(self, face_xy: np.ndarray, centre, sides) -> np.ndarray:
+        """Mask (n,) of the face nodes ``face_xy`` (n, 2), m, under the pad, on a
+        face of centre ``centre`` (2,) and sides ``sides`` (2,), m.
+
+        Raises
+        ------
+        ValueError
+            The pad reaches outside the face (message starts with ``offset``
+            or ``size``), or no node is under it.
+        """
+        half, sides = np.asarray(self.size) / 2, np.asarray(sides, dtype=float)
+        eps = 1e-9 * float(sides.max())
+        if np.any(np.abs(self.offset) + half > sides / 2 + eps):
+            key = "size" if np.any(half > sides / 2 + eps) else "offset"
+            raise ValueError(f"{key}: the pad ({self.shape} {list(self.size)} m at offset {list(self.offset)} m) "
+                             f"reaches outside the upper face ({list(sides)} m)")
+        rel = face_xy - (np.asarray(centre, dtype=float)[:2] + self.offset)
+        if self.shape == "disc":
+            under = np.hypot(rel[:, 0], rel[:, 1]) <= half[0] + eps
+        else:
+            under = np.all(np.abs(rel) <= half + eps, axis=1)
+        if not under.any():
+            raise ValueError(f"size: no upper-face node is under the pad ({self.shape} {list(self.size)} m at "
+                             f"offset {list(self.offset)} m): enlarge it or refine the mesh")
+        return under
 
 
 @dataclass(frozen=True)

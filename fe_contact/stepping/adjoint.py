@@ -116,7 +116,7 @@ def _backward(model: Model, steps, g: np.ndarray):
         pose_map = lower_pose_derivative(model, lin.U, basis)  # (3, 2 n_lower)
         lam_U = lam_U.copy()
         lam_U[lower_xy] += g[k, :3] @ pose_map
-        lam_force = np.tile(g[k, 3:6], (model.mesh.upper.size, 1))
+        lam_force = np.tile(g[k, 3:6], (model.held_nodes.size, 1))
         if model.gripper.rigid:
             lam_start, lam_upper, lam_step = lin.solve_adjoint(lam_U, lam_force)
             lam_pose = lam_pose + upper_pose_jacobian(model, steps[k][1]).T @ lam_upper

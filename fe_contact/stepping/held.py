@@ -25,7 +25,7 @@ def held_step(model: Model, state: State, command: Command, translation: np.ndar
     gripper's trial poses)."""
     U = predictor(model, state, command)
     if model.pad is None:
-        U[model.mesh.upper] = upper_face_displacement(model, translation, rotation)
+        U[model.held_nodes] = upper_face_displacement(model, translation, rotation)
         loading, gripper = held_loading(model), None
     else:
         loading, gripper = pad_loading(model, state), (translation, pad_motion(model, state, translation, rotation))

@@ -137,7 +137,7 @@ def plate_wrench(model: Model, U: np.ndarray, f_upper: np.ndarray) -> np.ndarray
     """In-plane resultant ``(F_x, F_y, M_z)`` (3,), N, N, N m, of upper-face
     nodal forces ``f_upper`` (n_upper, 3), the moment about the face's current
     centre (the plate's centre), for displacements ``U`` (n_nodes, 3)."""
-    x = (model.mesh.nodes + U)[model.mesh.upper, :2]
+    x = (model.mesh.nodes + U)[model.held_nodes, :2]
     rel = x - x.mean(axis=0)
     moment = float((rel[:, 0] * f_upper[:, 1] - rel[:, 1] * f_upper[:, 0]).sum())
     return np.array([f_upper[:, 0].sum(), f_upper[:, 1].sum(), moment])

@@ -22,7 +22,7 @@ from ..linalg.cholesky import SupernodalStructure, supernodal_structure
 from ..fem.loads import GRAVITY, Gripper, body_force, diagonal_positions, nodal_volumes
 from ..fem.mesh import BlockMesh, block_mesh, face_tributary_areas, nested_dissection_parts
 
-from ..contact.bodies import ContactBody, ContactSet, horizontal_frame, stack_bodies
+from ..contact.bodies import ContactBody, ContactSet, Footprint, horizontal_frame, stack_bodies
 from ..contact.friction import MU_MAX, local_frame
 from ..contact.local_solver import METHODS as LOCAL_METHODS
 from .command import Command, _finite  # noqa: F401  (Command re-exported)
@@ -171,6 +171,13 @@ class Model:
     between them ``"fbar_blend"``, the F-bar family member whose weight rises smoothly
     with nu: :func:`~fe_contact.fem.finite_strain.auto_fbar_weight`); the resolved name
     after construction (its weight: ``geometry.fbar_weight``)."""
+    footprint: Footprint | None = None
+    """The pad's footprint on the upper face (:class:`~fe_contact.contact.bodies.Footprint`):
+    only the upper-face nodes under it are held (bonded pad) or pad contacts
+    (frictional pad), the rest of the face is free; None (default): the whole
+    face.  Rotations stay about the face's centre (:attr:`upper_centre`)."""
+    held_nodes: np.ndarray = field(init=False, repr=False)
+    """(n_held,) upper-face nodes under the pad (all of ``mesh.upper`` without a footprint)."""
     contacts: ContactSet = field(init=False, repr=False)
     """Every contact body's contacts (the floor's first, then the pad's)."""
     contact_dofs: np.ndarray = field(init=False, repr=False)
@@ -212,6 +219,8 @@ class Model:
             raise ValueError(f"gripper must be a Gripper, got {type(self.gripper).__name__}")
         if self.pad is not None and not isinstance(self.pad, Friction):
             raise ValueError(f"pad must be a Friction or None (bonded), got {type(self.pad).__name__}")
+        if self.footprint is not None and not isinstance(self.footprint, Footprint):
+            raise ValueError(f"footprint must be a Footprint or None, got {type(self.footprint).__name__}")
         if self.quadrature not in (2, 3):
             # one point per element leaves the hex8 hourglass modes without
             # stiffness: K_ff is singular and the flexibility matrix meaningless
@@ -225,7 +234,8 @@ class Model:
         set_(self, "geometry", element_geometry(mesh, self.quadrature, self.element,
                                                 fbar_weight(self.element, self.material.poisson)))
         set_(self, "pattern", sparsity_pattern(mesh.elements, mesh.n_nodes))
-        upper_dofs = (3 * mesh.upper[:, None] + np.arange(3)).ravel()
+        set_(self, "held_nodes", self._held_nodes())
+        upper_dofs = (3 * self.held_nodes[:, None] + np.arange(3)).ravel()
         if not self.hold_upper or self.pad is not None:
             upper_dofs = upper_dofs[:0]
         mask = np.ones(mesh.n_dofs, dtype=bool)
@@ -256,6 +266,15 @@ class Model:
                 [d[interior[d]] for d in dof_parts], self.contact_dofs.ravel(),
             ))
 
+    def _held_nodes(self) -> np.ndarray:
+        """The upper-face nodes under the pad's footprint (read-only)."""
+        upper = self.mesh.upper
+        if self.footprint is not None:
+            xy = self.mesh.nodes[upper, :2]
+            upper = upper[self.footprint.select(xy, xy.mean(axis=0), self.mesh.size[:2])]
+            upper.setflags(write=False)
+        return upper
+
     def _bodies(self) -> tuple[ContactBody, ...]:
         """The floor (plane z = 0, normal up) and, if frictional, the pad (the
         plane of the upper face, normal down, moving with the gripper)."""
@@ -264,7 +283,7 @@ class Model:
         if self.pad is None:
             return (floor,)
         top = float(self.mesh.nodes[self.mesh.upper, 2].max())
-        return floor, ContactBody("pad", self.mesh.upper, horizontal_frame(False, self.pad.angle),
+        return floor, ContactBody("pad", self.held_nodes, horizontal_frame(False, self.pad.angle),
                                   np.array([0.0, 0.0, top]), self.pad.mu_x, self.pad.mu_y, moves_with_gripper=True)
 
     def released(self) -> "Model":

@@ -325,7 +325,7 @@ def _command_force_scale(model: Model, state: State, U: np.ndarray, f_contact: n
     block is lifted off and all forces vanish.  The predictor cannot
     give it: a block moved in the plane in the air is in equilibrium to rounding.
     """
-    upper = model.mesh.upper
+    upper = model.held_nodes
     U_upper_only = np.array(state.displacement, dtype=float)
     U_upper_only[upper] = U[upper]
     f_int, _ = internal_force(model.geometry, model.mesh.elements, U_upper_only, model.material)

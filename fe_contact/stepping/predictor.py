@@ -30,7 +30,8 @@ def commanded_pose(state: State, command: Command) -> tuple[np.ndarray, float]:
 
 
 def upper_face_displacement(model: Model, translation: np.ndarray, rotation: float) -> np.ndarray:
-    """Displacement of the upper-face nodes for a rigid pose of the upper face.
+    """Displacement of the held upper-face nodes (``model.held_nodes``: those
+    under the pad's footprint) for a rigid pose of the upper face.
 
     Parameters
     ----------
@@ -42,9 +43,9 @@ def upper_face_displacement(model: Model, translation: np.ndarray, rotation: flo
 
     Returns
     -------
-    ndarray, shape (n_upper, 3)
+    ndarray, shape (n_held, 3)
     """
-    X = model.mesh.nodes[model.mesh.upper]
+    X = model.mesh.nodes[model.held_nodes]
     c = model.upper_centre
     cs, sn = math.cos(rotation), math.sin(rotation)
     rel = X - c

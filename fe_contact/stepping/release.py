@@ -372,9 +372,9 @@ def _balance(model: Model, U: np.ndarray, reaction: np.ndarray, held: bool, uppe
     if model.body_force is not None:
         f = f - model.body_force.reshape(-1, 3)
     np.subtract.at(f, model.contacts.nodes, model.contacts.to_world(reaction))
-    pad = f[model.mesh.upper].sum(axis=0) if held else np.asarray(upper_force, dtype=float)
+    pad = f[model.held_nodes].sum(axis=0) if held else np.asarray(upper_force, dtype=float)
     if held:
-        f[model.mesh.upper] = 0.0
+        f[model.held_nodes] = 0.0
     if not np.all(np.isfinite(f)):
         return pad, np.inf
     return pad, float(np.linalg.norm(f, axis=1).max())

@@ -252,7 +252,7 @@ def upper_pose_jacobian(model: Model, rotation: float) -> np.ndarray:
     """Derivative of the upper face's displacements with respect to its pose
     ``(t_x, t_y, t_z, theta)`` (:func:`~fe_contact.stepping.predictor.upper_face_displacement`),
     shape (n_upper * 3, 4): m/m and m/rad."""
-    rel = model.mesh.nodes[model.mesh.upper] - model.upper_centre
+    rel = model.mesh.nodes[model.held_nodes] - model.upper_centre
     n_up = rel.shape[0]
     c, s = math.cos(rotation), math.sin(rotation)
     out = np.zeros((n_up, 3, 4))
@@ -267,7 +267,7 @@ def plate_wrench_derivative(model: Model, U: np.ndarray, f_upper: np.ndarray, dU
     """Derivative (3, J) of :func:`~fe_contact.stepping.measure.plate_wrench`
     ``(F_x, F_y, M_z)`` for displacement derivatives ``dU`` (n_dofs, J) and
     upper-face force derivatives ``df_upper`` (n_upper, 3, J)."""
-    upper = model.mesh.upper
+    upper = model.held_nodes
     x = (model.mesh.nodes + U)[upper, :2]
     rel = x - x.mean(axis=0)
     d_x = dU.reshape(-1, 3, dU.shape[1])[upper, :2]
@@ -282,7 +282,7 @@ def plate_wrench_adjoint(model: Model, U: np.ndarray, f_upper: np.ndarray, weigh
     """The transpose of :func:`plate_wrench_derivative`: for the weights (3,) of
     ``(dF_x, dF_y, dM_z)``, the weights of ``dU`` (n_dofs,) and of ``df_upper``
     (n_upper, 3).  ``M_z = sum (x - x_bar) f_y - (y - y_bar) f_x`` over the upper face."""
-    upper = model.mesh.upper
+    upper = model.held_nodes
     x = (model.mesh.nodes + U)[upper, :2]
     rel = x - x.mean(axis=0)
     f = f_upper - f_upper.mean(axis=0)  # sum d_rel f = sum d_x (f - f_bar)

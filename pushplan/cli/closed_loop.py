@@ -6,7 +6,9 @@ path behind it, the friction it was planned with, the estimates) and ``DIR/recor
 (the truth's closed-loop run; at each push ``plan/replanned``, the plan behind it; the
 closed- and open-loop paths of the lower face as ``plan/verified`` / ``plan/naive``).
 
-A rest target is scored on the truth's rest pose after its release.  Exit status 3 when
+A rest target is scored on the truth's rest pose after its release; while that is outside the
+tolerance the gripper grasps the block again where it rests and pushes the correction, up to
+``[plan] episodes`` grasp-push-release cycles (``closed_loop.json``'s ``episodes``).  Exit status 3 when
 the closed loop ends outside the tolerance or a solver fails inside it (the files are
 written when the loop finished); 2 for bad input (nothing written), checked before the
 loop starts: a failure inside the loop is never 2 (a bug there exits 1 with its traceback).
@@ -68,7 +70,8 @@ def cmd_closed_loop(args) -> int:
     c, o = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
     print(f"{scenario.name} on {truth.name}: closed loop {c['position'] * 1e6:.3f} um "
           f"({'within' if c['within_tolerance'] else 'outside'} tolerance {spec.tolerance * 1e6:.3g} um), "
-          f"open loop {o['position'] * 1e6:.3f} um")
+          f"open loop {o['position'] * 1e6:.3f} um"
+          + (f", {len(doc['episodes'])} episode(s)" if doc["episodes"] else ""))
     if doc["final_estimates"]:
         print("  final estimates: " + ", ".join(f"{k} = {v['estimate']:.5g} +- {v['sigma'] or float('inf'):.2g}"
                                               for k, v in doc["final_estimates"].items() if k != "fe_rollouts"))

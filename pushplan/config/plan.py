@@ -22,6 +22,8 @@ applied before the planned commands; the ``[plan]`` table reads (SI units)::
                                # [release] (default when there is one; needs one)
     robust = {level = 0.95, max_iterations = 8, monte_carlo = 50, seed = 0}
                                # settings of the robust plan (pushplan plan --identified, docs/planning.md)
+    episodes = 3               # closed-loop to a rest target: at most this many grasp, push and
+                               # release cycles (1 to 10; default 3)
 
 With ``frame = "world"`` (a scenario with a ``[mujoco]`` table) ``x``, ``y`` are the
 world position (m) of the lower-face centre and ``yaw_deg`` the block's world yaw;
@@ -41,8 +43,8 @@ from dataclasses import dataclass
 from fe_contact import Command, wrap_angle
 
 from ..errors import InputError
-from ..limits import (MAX_COUNT, MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_LENGTH, MAX_MONTE_CARLO, MAX_PLAN_STEPS,
-                      MAX_ROBUST_ITERATIONS, MAX_ROLLOUTS, MIN_PLAN_STEP, MIN_TOLERANCE_LENGTH)
+from ..limits import (MAX_COUNT, MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_EPISODES, MAX_LENGTH, MAX_MONTE_CARLO,
+                      MAX_PLAN_STEPS, MAX_ROBUST_ITERATIONS, MAX_ROLLOUTS, MIN_PLAN_STEP, MIN_TOLERANCE_LENGTH)
 from .commands import degrees_exact
 from .scenario import Scenario
 from .validate import Table, count
@@ -50,6 +52,7 @@ from .validate import Table, count
 PLAN_KEYS = frozenset({
     "x", "y", "yaw_deg", "steps", "max_step", "max_dtheta_deg", "tolerance", "yaw_tolerance_deg",
     "effort_weight", "planning_elements", "planning_quadrature", "max_rollouts", "frame", "target_state", "robust",
+    "episodes",
 })
 ROBUST_KEYS = frozenset({"level", "max_iterations", "monte_carlo", "seed"})
 FRAMES = ("block", "world")
@@ -62,6 +65,7 @@ DEFAULT_EFFORT_WEIGHT = 1e-3
 DEFAULT_PLANNING_ELEMENTS = (6, 6, 2)
 DEFAULT_PLANNING_QUADRATURE = 2
 DEFAULT_MAX_ROLLOUTS = 6
+DEFAULT_EPISODES = 3
 DEFAULT_ROBUST_LEVEL = 0.95
 DEFAULT_ROBUST_ITERATIONS = 8
 DEFAULT_MONTE_CARLO = 50
@@ -133,6 +137,8 @@ class PlanSpec:
     """With ``frame = "world"``: the block's rest pose ``(x, y, yaw)`` in the world."""
     robust: RobustSpec = RobustSpec()
     """``robust``: the settings of a robust plan (used with ``pushplan plan --identified``)."""
+    episodes: int = DEFAULT_EPISODES
+    """``closed-loop`` to a rest target: grasp, push and release cycles at most."""
 
     @property
     def travel(self) -> float:
@@ -157,8 +163,8 @@ class PlanSpec:
             "tolerance": self.tolerance, "yaw_tolerance_deg": math.degrees(self.yaw_tolerance),
             "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
             "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-            "travel": self.travel, "target_state": self.target_state, "robust": self.robust.to_dict(),
-            "frame": "block" if self.world_origin is None else "world",
+            "travel": self.travel, "target_state": self.target_state, "episodes": self.episodes,
+            "robust": self.robust.to_dict(), "frame": "block" if self.world_origin is None else "world",
             **({} if self.world_origin is None else {"world": {
                 "x": self.world_target[0], "y": self.world_target[1],
                 "yaw_deg": math.degrees(self.world_target[2]) if self.yaw_targeted else None,
@@ -172,7 +178,7 @@ class PlanSpec:
                  "tolerance": self.tolerance, "yaw_tolerance_deg": degrees_exact(self.yaw_tolerance),
                  "effort_weight": self.effort_weight, "planning_elements": list(self.planning_elements),
                  "planning_quadrature": self.planning_quadrature, "max_rollouts": self.max_rollouts,
-                 "target_state": self.target_state, "robust": self.robust.to_dict()}
+                 "target_state": self.target_state, "robust": self.robust.to_dict(), "episodes": self.episodes}
         if self.yaw_targeted:
             table.update(yaw_deg=degrees_exact(self.target[2]), max_dtheta_deg=degrees_exact(self.max_dtheta))
         if self.world_target is not None:
@@ -308,4 +314,5 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
         planning_quadrature=t.integer("planning_quadrature", DEFAULT_PLANNING_QUADRATURE, minimum=2, maximum=3),
         max_rollouts=t.integer("max_rollouts", DEFAULT_MAX_ROLLOUTS, minimum=1, maximum=MAX_ROLLOUTS),
         world_target=world_target, world_origin=world_origin, target_state=target_state, robust=parse_robust(t),
+        episodes=t.integer("episodes", DEFAULT_EPISODES, minimum=1, maximum=MAX_EPISODES),
     )

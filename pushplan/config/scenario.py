@@ -35,6 +35,10 @@ A scenario reads::
                                               # displacement control), mu (isotropic, >= 0), or a table
                                               # {mu_x = .., mu_y = .., angle_deg = ..}: a rigid frictional
                                               # contact body (rigid gripper, lift release with weight)
+    pad_shape = "rectangle"                   # optional: the pad's footprint, "rectangle" or "disc"
+    pad_size = [0.01, 0.01]                   # rectangle sides along x, y (m) (omitted: the whole face)
+    pad_radius = 0.005                        # disc radius (m), instead of pad_size
+    pad_offset = [0.0, 0.0]                   # pad centre from the upper face's centre (m)
     [release]                                 # optional: let go after the last load step
     mode = "lift"                             # the gripper rises until the pad carries no load ("open"
                                               # was removed: its rest pose depended on a pad stiffness)
@@ -57,8 +61,9 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fe_contact import (AUTO_HEX8_POISSON, ELEMENTS, LAWS, LOCAL_METHODS, BlockMesh, Command, Friction, Gripper, Material,
-                        Model, MU_MAX, ERROR_TOL_REMOVED, Release, SolverOptions, block_mesh)
+from fe_contact import (AUTO_HEX8_POISSON, ELEMENTS, ERROR_TOL_REMOVED, FOOTPRINT_SHAPES, LAWS, LOCAL_METHODS, MU_MAX,
+                        BlockMesh, Command, Footprint, Friction, Gripper, Material, Model, Release, SolverOptions,
+                        block_mesh)
 
 from ..errors import InputError, InputWarning
 from ..limits import (MAX_ACCELERATION, MAX_ELEMENTS, MAX_ELEMENTS_PER_AXIS, MAX_GRIPPER_STIFFNESS, MAX_LENGTH,
@@ -106,6 +111,8 @@ class Scenario:
     """The gripper pad's friction (None: bonded)."""
     material_model: str = "stvk"
     element: str = "auto"
+    footprint: Footprint | None = None
+    """The pad's footprint on the upper face (None: the whole face)."""
 
     def model(self, elements=None, quadrature=None, what: str | None = None) -> Model:
         """The ``fe_contact`` model; ``elements`` / ``quadrature`` override the mesh
@@ -134,6 +141,7 @@ class Scenario:
             gripper=self.gripper or Gripper(),
             pad=self.pad,
             element=self.element,
+            footprint=self.footprint,
         )
 
     def mesh(self, elements=None) -> BlockMesh:
@@ -160,6 +168,8 @@ class Scenario:
                                    "stiffness_yaw": self.gripper.stiffness_yaw}
         if self.pad is not None:
             optional.setdefault("gripper", {})["friction"] = pad_friction_dict(self.pad)
+        if self.footprint is not None:
+            optional.setdefault("gripper", {}).update(footprint_dict(self.footprint))
         if self.release is not None:
             optional["release"] = {"mode": self.release.mode, "steps": self.release.steps}
             if self.release.height:
@@ -231,7 +241,7 @@ def _stiffness(t: Table, k: str) -> float:
 def _gripper(top: Table) -> tuple[Gripper | None, Friction | None]:
     if "gripper" not in top:
         return None, None
-    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw", "friction"})
+    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw", "friction", *FOOTPRINT_KEYS})
     pad = _pad_friction(t) if "friction" in t else None
     if "stiffness_xy" not in t and "stiffness_yaw" not in t:
         return None, pad
@@ -268,6 +278,52 @@ def _mu(t: Table, k: str) -> float:
     """A friction coefficient: from 0 to fe_contact's ``MU_MAX`` (beyond it the cone's
     scaling overflows and a step could not be trusted)."""
     return t.number(k, nonneg=True, maximum=MU_MAX)
+
+
+FOOTPRINT_KEYS = ("pad_shape", "pad_size", "pad_radius", "pad_offset")
+
+
+def _footprint(top: Table, size, elements) -> Footprint | None:
+    """``gripper.pad_*``: the pad's footprint, checked against the upper face of the
+    ``size`` (m) / ``elements`` block (inside it, a node under it); None: the whole face."""
+    if "gripper" not in top:
+        return None
+    t = top.table("gripper", {"stiffness_xy", "stiffness_yaw", "friction", *FOOTPRINT_KEYS})
+    if not any(k in t.data for k in FOOTPRINT_KEYS):
+        return None
+    shape = t.choice("pad_shape", FOOTPRINT_SHAPES, "rectangle")
+    wanted, other = ("pad_radius", "pad_size") if shape == "disc" else ("pad_size", "pad_radius")
+    if other in t.data or wanted not in t.data:
+        raise InputError(f"gripper.pad_shape = {shape!r} takes gripper.{wanted} (not {other}), got keys "
+                         f"{sorted(k for k in t.data if k in FOOTPRINT_KEYS)}")
+    if shape == "disc":
+        side = 2 * t.number("pad_radius", positive=True, maximum=MAX_LENGTH)
+        sides = (side, side)
+    else:
+        sides = _pair(t, "pad_size", None, positive=True)
+    offset = _pair(t, "pad_offset", [0.0, 0.0], minimum=-MAX_LENGTH, maximum=MAX_LENGTH)
+    footprint = Footprint(shape, sides, offset)
+    xy = block_mesh(size, (elements[0], elements[1], 1)).nodes[:, :2]
+    try:
+        footprint.select(xy, xy.mean(axis=0), size[:2])
+    except ValueError as e:
+        key, _, why = str(e).partition(": ")
+        key = {"offset": "pad_offset", "size": wanted}[key]
+        raise InputError(f"gripper.{key} = {t.data.get(key, [0.0, 0.0])!r}: {why}") from None
+    return footprint
+
+
+def _pair(t: Table, k: str, default, **bounds) -> tuple[float, float]:
+    value = t.data.get(k, default)
+    if not isinstance(value, list) or len(value) != 2:
+        raise InputError(f"{t.key(k)} must be [x, y] in m, got {value!r}")
+    return tuple(number(f"{t.key(k)}[{i}]", v, **bounds) for i, v in enumerate(value))
+
+
+def footprint_dict(footprint: Footprint) -> dict:
+    """The pad's footprint as written in files (``gripper.pad_*`` keys, m)."""
+    size = {"pad_radius": footprint.size[0] / 2} if footprint.shape == "disc" else {"pad_size": list(footprint.size)}
+    return {"pad_shape": footprint.shape, **size, "pad_offset": list(footprint.offset)}
 
 
 def pad_friction_dict(pad: Friction | None):
@@ -367,6 +423,7 @@ def parse_scenario(data: dict, name: str = "scenario") -> Scenario:
         release=_release(top, density, commands, pad),
         material_model=material.choice("model", LAWS, "stvk"),
         element=block.choice("element", ("auto", *ELEMENTS), "auto"),
+        footprint=_footprint(top, block.triple("size", positive_number), elements),
     )
     _warn_implausible("material.young", [scenario.young])
     _warn_implausible("block.size", scenario.size)

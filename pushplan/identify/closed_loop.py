@@ -38,6 +38,7 @@ from ..planning.replan import replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
+from .episodes import Episode, episode_spec, pose_json, regrasp, relative_summary, rest_shift
 from .fit import identify
 from .noise import NoiseModel
 
@@ -65,6 +66,10 @@ class Truth:
     reports: list[StepReport] = field(default_factory=list)
     steps: list[StepSummary] = field(default_factory=list)
     last: tuple = (None, ())  # the state before the last commands, and those commands
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """The world pose (x, y, yaw) its episode started from: ``steps`` hold poses relative to it."""
+    rest: np.ndarray | None = None
+    """The rest pose after :meth:`let_go`, relative to ``origin``."""
 
     def execute(self, commands) -> None:
         self.last = (self.state, tuple(commands))
@@ -74,7 +79,35 @@ class Truth:
             raise TruthFailure(f"truth FE step {f.step} failed ({f.status}): {f.message}")
         self.state = run.state
         self.reports += run.reports
-        self.steps += run.summary.steps
+        self.steps += [relative_summary(s, self.origin) for s in run.summary.steps]
+
+    def let_go(self, release) -> np.ndarray:
+        """Release the block (the last commands re-run with ``release``, as in
+        :meth:`rest_pose`) and keep its rest state; returns the observed rest pose
+        relative to ``origin`` (m, rad)."""
+        start, commands = self.last
+        run = drive(self.model, commands, start, release=release)
+        if not run.completed or run.summary.rest is None:
+            f = run.summary.failure
+            raise TruthFailure(f"truth release failed at step {f.step} ({f.status}): {f.message}")
+        self.state = run.state
+        r = run.summary.rest
+        self.rest = np.array([r.lower_centroid[0], r.lower_centroid[1], r.lower_yaw]) - self.origin
+        return self.rest
+
+    def regrasped(self, press) -> "Truth":
+        """The truth of the next episode: the gripper grasps the block where it rests
+        (:func:`~pushplan.identify.episodes.regrasp`) and applies ``press``; its poses
+        relative to the rest pose."""
+        origin = self.origin + self.rest
+        state, grasp = regrasp(self.model, self.state)
+        run = drive(self.model, grasp + tuple(press), state)
+        if not run.completed:
+            f = run.summary.failure
+            raise TruthFailure(f"truth re-grasp failed at step {f.step} ({f.status}): {f.message}")
+        t = Truth(self.model, run.state, list(run.reports[len(grasp):]), origin=origin)
+        t.steps = [relative_summary(s, origin) for s in run.summary.steps[len(grasp):]]
+        return t
 
     def rest_pose(self, release) -> np.ndarray:
         """The lower-face pose ``(x, y, yaw)`` (m, rad) at rest after ``release`` from the
@@ -207,27 +240,9 @@ def _final(truth: Truth, spec: PlanSpec, release) -> np.ndarray:
     return truth.rest_pose(release) if spec.target_state == "rest" else truth.pose
 
 
-def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
-                noise: NoiseModel | None = None, log=None, warm: bool = True) -> dict:
-    """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
-    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
-
-    After each push the re-plan aims at ``target - shift`` (:func:`modifier`): for a loaded
-    target ``bias``, the truth's pose less the pose the plan expected after that push; for a
-    rest target that bias and the model's loaded discrepancy weighed by the plan's
-    spring-back.  A rest target is scored on the truth's
-    rest pose after the release (the truth scenario's ``[release]``, else the model's).
-    ``warm``: re-plan in one :class:`~pushplan.planning.planner.PlanSession` on the planning
-    mesh (without identification); False re-plans cold, each from the press on both meshes."""
-    t_start = time.perf_counter()
-    noise = noise or NoiseModel()
-    press = press_commands(model_sc)
-    release = truth_sc.release or model_sc.release
-    first = plan(model_sc, spec, baseline=False)
-    open_truth = _new_truth(truth_sc, press)
-    open_truth.execute(planar_commands(first.commands))
-    open_final = _final(open_truth, spec, release)
-    truth = _new_truth(truth_sc, press)
+def _pushes(model_sc, spec, truth, first, use_identify, noise, log, warm, label=""):
+    """Execute ``first``'s pushes one at a time on ``truth``, re-planning after each
+    (:func:`modifier`); returns the model planned with last and the iterations."""
     # the warm planner of the re-plans, on the planning mesh (the bias takes up its error too)
     session = PlanSession(model_sc, spec, verify=False) if warm and not use_identify else None
     if session is not None:
@@ -242,7 +257,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
                                                                   modifier(spec, bias, drift, springback),
                                                                   session)
         except InputError as e:
-            raise LoopError(f"closed loop step {k + 1}: {e}") from e
+            raise LoopError(f"closed loop {label}step {k + 1}: {e}") from e
         bias = truth.pose - planned[1] + bias  # planned[1] holds the old bias
         # the model's loaded discrepancy from the truth; an identified model is fitted to the
         # observed poses, so its own is taken as none
@@ -251,9 +266,77 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
         iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
                                     result.message, sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
         if log:
-            log(f"step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
+            log(f"{label}step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
-    final_pose = _final(truth, spec, release)
+    return current, iterations
+
+
+def _world(iterations, origin) -> tuple:
+    """``iterations`` with their poses moved from an episode's frame to the world's."""
+    return tuple(dataclasses.replace(it, observed=it.observed + origin, planned=it.planned + origin)
+                 for it in iterations)
+
+
+def _episodes(current, spec, truth, first, iterations, release, press, options, t_start):
+    """The first episode's release and, while its rest pose is outside the tolerance,
+    further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most; returns the
+    model planned with last, the episodes and the last episode's truth."""
+    use_identify, noise, log, warm = options
+    truth.let_go(release)
+    episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
+                        _error(truth.rest, spec), 0, time.perf_counter() - t_start)]
+    observed, aimed = [], []
+    while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
+        t0, index = time.perf_counter(), len(episodes) + 1
+        origin = episodes[-1].rest
+        spec_e = episode_spec(spec, origin, rest_shift(observed, aimed))
+        if log:
+            log(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
+        truth = truth.regrasped(press)
+        first_e = plan(current, spec_e, baseline=False)
+        current, its = _pushes(current, spec_e, truth, first_e, use_identify, noise, log, warm, f"episode {index} ")
+        rest = truth.let_go(release)
+        observed.append(rest)
+        aimed.append(np.array(spec_e.target))
+        world = origin + rest
+        episodes.append(Episode(index, origin, np.array(spec_e.target), _world(its, origin), origin + truth.pose,
+                                world, _error(world, spec), 1 if truth.model.pad is None else 0,
+                                time.perf_counter() - t0))
+    return current, episodes, truth
+
+
+def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
+                noise: NoiseModel | None = None, log=None, warm: bool = True) -> dict:
+    """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
+    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
+
+    After each push the re-plan aims at ``target - shift`` (:func:`modifier`): for a loaded
+    target ``bias``, the truth's pose less the pose the plan expected after that push; for a
+    rest target that bias and the model's loaded discrepancy weighed by the plan's
+    spring-back.  A rest target is scored on the truth's
+    rest pose after the release (the truth scenario's ``[release]``, else the model's); while
+    that is outside the tolerance, the gripper grasps the block again where it rests and
+    pushes the correction, ``spec.episodes`` grasp-push-release cycles at most (:mod:`.episodes`).
+    ``warm``: re-plan in one :class:`~pushplan.planning.planner.PlanSession` on the planning
+    mesh (without identification); False re-plans cold, each from the press on both meshes."""
+    t_start = time.perf_counter()
+    noise = noise or NoiseModel()
+    press = press_commands(model_sc)
+    release = truth_sc.release or model_sc.release
+    first = plan(model_sc, spec, baseline=False)
+    open_truth = _new_truth(truth_sc, press)
+    open_truth.execute(planar_commands(first.commands))
+    open_final = _final(open_truth, spec, release)
+    truth = first_truth = _new_truth(truth_sc, press)
+    current, iterations = _pushes(model_sc, spec, truth, first, use_identify, noise, log, warm)
+    episodes = []
+    if spec.target_state == "rest":
+        current, episodes, truth = _episodes(current, spec, truth, first, iterations, release, press,
+                                             (use_identify, noise, log, warm), t_start)
+        iterations = [it for e in episodes for it in e.iterations]
+        final_pose = episodes[-1].rest
+    else:
+        final_pose = truth.pose
     final = (_identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT, model_error=False))
              if use_identify else None)
     return {
@@ -263,13 +346,15 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
         "open_loop": {"commands": [command_to_dict(c) for c in planar_commands(first.commands)],
                       "final_pose": _pose_json(open_final), "final_error": _error(open_final, spec)},
         "closed_loop": {"commands": [command_to_dict(it.command) for it in iterations],
-                        "final_pose": _pose_json(final_pose), "final_error": _error(final_pose, spec)},
+                        "final_pose": _pose_json(final_pose), "final_error": _error(final_pose, spec),
+                        "episodes": len(episodes) or None},
         "final_estimates": final,
         "iterations": [it.to_dict() for it in iterations],
+        "episodes": [e.to_dict() for e in episodes],
         "wall_time_s": time.perf_counter() - t_start,
-        "_truth": (truth, open_truth, [it.planned for it in iterations]),
+        "_truth": (first_truth, open_truth, [it.planned for it in episodes[0].iterations] if episodes
+                   else [it.planned for it in iterations]),
     }
 
 
-def _pose_json(pose) -> list[float]:
-    return [float(pose[0]), float(pose[1]), math.degrees(float(pose[2]))]
+_pose_json = pose_json
