@@ -70,8 +70,11 @@ def _tree_cpu(pid: int) -> float:
     return sum(cpu.get(p, 0.0) for p in tree)
 
 
-def _observation(i: int) -> list[float]:
-    return [0.45e-3 * (1 + 0.05 * i), 0.2e-3 * (1 - 0.03 * i), 0.0]
+def _observation(first: dict, i: int) -> list[float]:
+    """Client ``i``'s observed pose after the first push: the plan's own pose there, off by
+    ``i`` um in x and y (as a truth on other friction would be)."""
+    x, y, yaw = first["poses"][1]
+    return [x + 1e-6 * i, y - 1e-6 * i, yaw]
 
 
 def _client_run(address: str, i: int, replans: int) -> list:
@@ -84,22 +87,30 @@ def _client_run(address: str, i: int, replans: int) -> list:
         first = s.plan()
         answers = [first["commands"]]
         for _ in range(replans):
-            answers.append(s.replan([first["commands"][0]], _observation(i))["commands"])
+            answers.append(s.replan([first["commands"][0]], _observation(first, i))["commands"])
         s.close()
     return answers
 
 
-def _in_process_rollout(n: int) -> list[float]:
+def _in_process(n: int) -> tuple[list[float], list[float]]:
+    """The same warm re-plans and rollouts in this process (a PlanSession of the planning
+    mesh, as the server's): their wall times."""
     from pushplan.config import load_scenario
-    from pushplan.config.plan import parse_plan, press_commands
-    from pushplan.planning.rollouts import FeRollouts
+    from pushplan.config.commands import planar_commands
+    from pushplan.config.plan import parse_plan
+    from pushplan.planning.planner import PlanSession
+    from pushplan.planning.replan import Start, remaining_spec
 
     sc = load_scenario(SCENARIO)
     spec = parse_plan(sc)
-    fe = FeRollouts(sc.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature), press_commands(sc),
-                    "planning", release=sc.release)
-    fe.rollout(np.array(COMMANDS), release=False)
-    return _timed(lambda: fe.rollout(np.array(COMMANDS), release=False), n)[0]
+    session = PlanSession(sc, spec, verify=False)
+    first = session.plan(spec, baseline=False)
+    executed = planar_commands(first.commands[:1])
+    start = Start(executed, np.array(_observation({"poses": first.verified.lower.tolist()}, 0)))
+    session.continue_from(executed)
+    replans = _timed(lambda: session.plan(remaining_spec(spec, start), baseline=False), n)[0]
+    rollouts = _timed(lambda: session.coarse.rollout(np.array(COMMANDS), release=False), n)[0]
+    return replans, rollouts
 
 
 def main(argv=None) -> int:
@@ -133,14 +144,16 @@ def main(argv=None) -> int:
                 s.close()
             s = c.open(scenario_path=str(SCENARIO), verify=False)
             plans, first = _timed(s.plan, args.calls)
-            replans, _ = _timed(lambda: s.replan([first["commands"][0]], _observation(0)), args.calls)
+            replans, _ = _timed(lambda: s.replan([first["commands"][0]], _observation(first, 0)), args.calls)
             rollouts, _ = _timed(lambda: s.rollout(COMMANDS), args.calls)
             cpu0, t0 = _tree_cpu(server.pid), time.perf_counter()
             time.sleep(args.idle)
             idle_cpu = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
             s.close()
-        local = _in_process_rollout(args.calls)
+        local_replans, local = _in_process(args.calls)
         doc |= {"open": _stats(opens), "plan": _stats(plans), "warm_replan": _stats(replans),
+                "warm_replan_in_process": _stats(local_replans),
+                "replan_ratio_median": float(np.median(replans) / np.median(local_replans)),
                 "rollout_3_pushes_6x6x2": _stats(rollouts), "rollout_in_process": _stats(local),
                 "rollout_ratio_median": float(np.median(rollouts) / np.median(local)),
                 "server_idle_cpu_s_per_s": idle_cpu}
