@@ -300,3 +300,12 @@ def test_sigterm_closes_sessions_and_exits_cleanly(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_serve_refuses_an_address_off_loopback_without_flag_and_token(tmp_path, capsys):
+    assert main(["serve", "--address", "0.0.0.0:0"]) == 2
+    assert "--allow-remote" in capsys.readouterr().err
+    (tmp_path / "short").write_text("abc\n")
+    assert main(["serve", "--address", "0.0.0.0:0", "--allow-remote", "--token-file", str(tmp_path / "short")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "at least 16 characters" in err

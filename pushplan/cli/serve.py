@@ -35,10 +35,10 @@ def cmd_serve(args) -> int:
             raise InputError(f"--root {root}: not a folder")
     limits = Limits(max_sessions=args.max_sessions, max_request_bytes=args.max_request_bytes,
                     call_timeout=args.call_timeout, idle_timeout=args.idle_timeout)
+    server = Server(args.address, limits, args.root, _token(args.token_file), args.allow_remote)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    server = Server(args.address, limits, args.root, _token(args.token_file), args.allow_remote)
     print(f"pushplan serve: listening on {server.address}", flush=True)
     try:
         stop.wait()
