@@ -24,7 +24,8 @@ from ..errors import (EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT_FAILURE, EXI
 
 # each module has ``register(subparsers)`` and imports its heavy dependencies
 # (numpy, fe_contact, casadi, mujoco, rerun) inside the command function only
-COMMAND_MODULES = ("simulate", "demo", "paper", "plan", "replay", "mujoco", "sweep", "convergence", "identify", "closed_loop")
+COMMAND_MODULES = ("simulate", "demo", "paper", "plan", "replay", "mujoco", "sweep", "convergence", "identify", "closed_loop",
+                   "serve")
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_SOLVER_FAILURE", "build_parser", "main"]
 

@@ -1,0 +1,167 @@
+"""One service session: a warm :class:`~pushplan.planning.planner.PlanSession` in its own
+process (a CPU-bound re-plan does not block other sessions; a crash stays in its session).
+
+The server sends ``(op, payload)`` over a pipe and reads one reply per request:
+``("ok", result)`` or ``("error", kind, message)``, ``kind`` one of ``"input"`` (bad
+input, :class:`~pushplan.errors.InputError`: the session is left as it was), ``"solver"``
+(:class:`~pushplan.errors.SolverFailure`) or ``"bug"`` (anything else: its type and
+message, one line).  Payloads and results are JSON-able dicts in SI units (m, rad, N, s);
+commands are rows ``(dx, dy, dtheta)``, poses rows ``(x, y, yaw)`` of the lower-face
+centroid relative to its rest pose (the block frame of ``pushplan plan``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+import tomllib
+
+import numpy as np
+
+from ..errors import InputError, SolverFailure
+
+
+def _rows(value, key: str, width: int = 3, max_rows: int = 10_000) -> np.ndarray:
+    """``value`` as a finite (n, width) float array; InputError naming ``key`` otherwise."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{key}: expected rows of {width} numbers, got {str(value)[:80]}") from None
+    if a.ndim != 2 or a.shape[1] != width or len(a) > max_rows or not np.all(np.isfinite(a)):
+        raise InputError(f"{key}: expected at most {max_rows} finite rows of {width} numbers, got shape {a.shape}")
+    return a
+
+
+def _pose(value, key: str) -> np.ndarray:
+    return _rows([value], key)[0]
+
+
+def _plan_doc(result) -> dict:
+    """The reply to a plan or re-plan: commands and the verified lower-face path."""
+    return {"status": result.status, "message": result.message, "commands": result.commands.tolist(),
+            "poses": result.verified.lower.tolist(), "final": result.verified.final(result.spec.target_state).tolist(),
+            "target": list(result.spec.target), "fe_rollouts": sum(result.rollouts.values()),
+            "wall_time_s": result.timings.get("total", 0.0)}
+
+
+class SessionState:
+    """The session's planner and what the client reported; one method per request."""
+
+    def __init__(self, scenario_text: str, name: str, verify: bool):
+        from ..config import parse_scenario
+        from ..config.plan import parse_plan
+        from ..planning.planner import PlanSession
+
+        try:
+            data = tomllib.loads(scenario_text)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(f"{name}: malformed TOML: {e}") from None
+        self.scenario = parse_scenario(data, name=name)
+        self.spec = parse_plan(self.scenario)
+        t0 = time.perf_counter()
+        self.session = PlanSession(self.scenario, self.spec, verify=verify)
+        self.build_time = time.perf_counter() - t0
+        self.observations: list[dict] = []
+
+    def info(self) -> dict:
+        s = self.scenario
+        return {"name": s.name, "steps": self.spec.steps, "target": list(self.spec.target),
+                "target_state": self.spec.target_state, "planning_elements": list(self.spec.planning_elements),
+                "verification_elements": list(s.elements) if self.session.fine is not None else None,
+                "build_time_s": self.build_time, "executed": len(self.session.executed), "pid": os.getpid()}
+
+    def _spec(self, payload: dict):
+        """The session's spec with the request's ``target`` (m, m, rad) and ``tolerance`` (m)."""
+        spec = self.spec
+        if payload.get("target") is not None:
+            spec = dataclasses.replace(spec, target=tuple(float(v) for v in _pose(payload["target"], "target")))
+        if payload.get("tolerance") is not None:
+            tol = payload["tolerance"]
+            if not isinstance(tol, (int, float)) or not (math.isfinite(tol) and tol > 0):
+                raise InputError(f"tolerance: expected a positive number of metres, got {tol!r}")
+            spec = dataclasses.replace(spec, tolerance=float(tol))
+        return spec
+
+    def plan(self, payload: dict) -> dict:
+        result = self.session.plan(self._spec(payload), baseline=bool(payload.get("baseline", False)))
+        return _plan_doc(result)
+
+    def replan(self, payload: dict) -> dict:
+        """Record an observation (the pushes executed after the press, the lower-face pose
+        after them, optionally the force (N) and time (s)) and re-plan the remaining steps
+        warm: the target less the observed pose, as ``pushplan plan --from`` does."""
+        from ..config.commands import planar_commands
+        from ..planning.replan import Start, remaining_spec
+
+        executed = planar_commands(_rows(payload.get("executed", []) or np.zeros((0, 3)), "executed"))
+        observed = _pose(payload.get("observed"), "observed")
+        spec = self._spec(payload)
+        if len(executed) >= spec.steps:
+            raise InputError(f"executed: {len(executed)} pushes executed, plan.steps = {spec.steps}: nothing to re-plan")
+        start = Start(executed, observed)
+        self.session.continue_from(executed)  # InputError before any change if they do not continue
+        self.observations.append({"observed": observed.tolist(), "force": payload.get("force"),
+                                  "time": payload.get("time")})
+        result = self.session.plan(remaining_spec(spec, start), baseline=False)
+        return _plan_doc(result) | {"observed": observed.tolist()}
+
+    def rollout(self, payload: dict) -> dict:
+        """Roll commands out from the session's current state on one mesh; with
+        ``jacobian``, the exact (3, K, 3) derivative of the final pose."""
+        commands = _rows(payload.get("commands"), "commands", max_rows=self.spec.steps * 10)
+        if len(commands) == 0:
+            raise InputError("commands: at least one row (dx, dy, dtheta) is needed")
+        mesh = payload.get("mesh", "planning")
+        fe = {"planning": self.session.coarse, "verification": self.session.fine}.get(mesh)
+        if fe is None:
+            raise InputError(f"mesh: expected \"planning\" or \"verification\" (this session's), got {mesh!r}")
+        if payload.get("jacobian"):
+            if not fe.exact:
+                raise InputError("jacobian: no exact derivatives with a release or a frictional pad in the scenario")
+            roll, jac = fe.rollout_with_jacobian(commands)
+            return {"poses": roll.lower.tolist(), "jacobian": jac.tolist(), "wall_time_s": roll.wall_time}
+        roll = fe.rollout(commands, release=bool(payload.get("release", False)))
+        return {"poses": roll.lower.tolist(), "rest": None if roll.rest is None else roll.rest.tolist(),
+                "wall_time_s": roll.wall_time}
+
+
+def _reply(conn, fn, *args) -> None:
+    try:
+        conn.send(("ok", fn(*args)))
+    except InputError as e:
+        conn.send(("error", "input", " ".join(str(e).split())))
+    except SolverFailure as e:
+        conn.send(("error", "solver", " ".join(str(e).split())))
+    except Exception as e:  # a bug: reported as one, the session goes on
+        conn.send(("error", "bug", f"{type(e).__name__}: {' '.join(str(e).split())}"))
+
+
+def worker_main(conn, scenario_text: str, name: str, verify: bool) -> None:
+    """The session process: build the session, then answer requests until ``close`` or
+    the pipe closes.  The first reply is the open's (``info`` or the error)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops its workers itself
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    state = None
+
+    def open_():
+        nonlocal state
+        state = SessionState(scenario_text, name, verify)
+        return state.info()
+
+    _reply(conn, open_)
+    if state is None:
+        return
+    ops = {"plan": state.plan, "replan": state.replan, "rollout": state.rollout, "info": lambda _: state.info()}
+    while True:
+        try:
+            op, payload = conn.recv()
+        except (EOFError, OSError):
+            return
+        if op == "close":
+            conn.send(("ok", {}))
+            return
+        _reply(conn, ops[op], payload)
