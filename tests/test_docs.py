@@ -173,7 +173,7 @@ def test_architecture_map_names_what_exists():
         if m or not line.startswith("    "):
             folder = m.group(1) if m and block.index(line) < block.index("\npushplan/") else None
             continue
-        if folder is not None:
+        if folder is not None and line[4] != " ":  # not a continuation line
             lead = re.match(r"^ {4}([\w.]+(?:, [\w.]+)*)", line).group(1).split(", ")
             named += [(folder, n) for n in lead + re.findall(r";\s+([\w.]+):", line)]
     assert len(named) >= 30
