@@ -400,7 +400,7 @@ def test_sigint_stops_a_sweep_with_130_and_a_rerun_resumes(tmp_path):
     assert time.monotonic() - t1 <= SURVIVAL_S
     done = len(list(out.glob("cases/*/case.json")))
     assert 1 <= done < 4
-    rerun = subprocess.run(cli("sweep", tmp_path / "sweep.toml", "--out", out, "--quiet"), env=ENV,
+    rerun = subprocess.run(cli("sweep", tmp_path / "sweep.toml", "--out", out), env=ENV,
                            capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     assert f"({4 - done} run, {done} already finished)" in rerun.stdout

@@ -117,36 +117,3 @@ def test_a_block_nudged_off_equilibrium_is_reported_out_of_balance():
     assert 1e-7 * model.weight < nudged.imbalance < 1e-2 * model.weight  # far above 1e-9, far below the weight
     assert plain.imbalance < 1e-2 * nudged.imbalance
     assert "out of balance" in nudged.reason
-
-
-# -- step-doubling error control (stepping/adaptive.py) ------------------------------------------
-def test_step_doubling_bounds_the_error_of_the_worst_node():
-    """The module's promise: the error estimate is the largest over the nodes, and a step
-    is accepted when it is at most ``tol |s| / span``, so the error summed over a motion
-    stays below ``tol``.  A first-order method with a known error, ``U + s v + c s^2``
-    with ``c`` at one node of 12 only (where the contact state would change): the
-    controlled result's error there, ``c sum s_k^2``, is within ``tol``, and the
-    error was what refined it (a mean over the nodes would see 1/12 of it)."""
-    from dataclasses import replace
-
-    from fe_contact.stepping.adaptive import controlled_step
-
-    model = Model(block_mesh((0.02, 0.02, 0.01), (1, 1, 1)), Material(2e6, 0.3), Friction(0.5, 0.5))
-    state, reports = run(model, [Command(dz=-1e-5)])
-    c = np.zeros(state.displacement.shape[0])
-    c[0] = 50.0  # 1/m: the error term of node 0
-    calls = []
-
-    def first_order_step(_, start, command):
-        s = command.dx
-        calls.append(s)
-        U = start.displacement + np.array([s, 0.0, 0.0]) + (c * s * s)[:, None] * np.array([1.0, 0.0, 0.0])
-        return replace(start, displacement=U, step_index=start.step_index + 1), reports[-1]
-
-    size, tol = 1e-3, 1e-6
-    end, report = controlled_step(model, state, Command(dx=size), first_order_step, tol, span=size)
-    exact = state.displacement[0, 0] + size
-    error = end.displacement[0, 0] - exact
-    assert 0 < error <= tol
-    assert len(calls) > 3  # refined: the whole step's error c s^2 / 2 = 2.5e-5 m is 25x tol
-    assert np.allclose(end.displacement[1:, 0] - state.displacement[1:, 0], size, rtol=1e-12)

@@ -53,7 +53,7 @@ def run(tmp_path_factory):
     with contextlib.redirect_stdout(printed):
         code = cli.main([
             "paper", "--out", str(out), "--elements", *map(str, ELEMENTS), "--quadrature", str(QUADRATURE),
-            "--local-method", "newton", "--docs", str(docs), "--quiet",
+            "--local-method", "newton", "--docs", str(docs),
         ])
     fields = {}
     for name in CASES:

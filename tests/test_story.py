@@ -124,7 +124,6 @@ dz = -4e-4
 [release]
 mode = "lift"
 steps = 4
-error_tol = 0.03
 [plan]
 x = 3e-3
 y = 1e-3
