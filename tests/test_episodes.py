@@ -132,7 +132,6 @@ dz = -4e-4
 [release]
 mode = "lift"
 steps = 4
-error_tol = 0.1
 """
 REST_PLAN = """
 [plan]
