@@ -1,7 +1,7 @@
 """Issue 39 item 5: the closed loop to a rest target observes the rest pose and, outside
 the tolerance, grasps the block again where it lies, presses, pushes the correction and
 releases, ``[plan] episodes`` times at most.  Cheap pieces here (a 3 x 2 x 2 block); the
-end-to-end acceptance run is marked slow (minutes)."""
+end-to-end acceptance run takes about 15 s (two closed loops)."""
 
 import math
 import tomllib
@@ -147,7 +147,6 @@ episodes = 3
 """
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("pad", ["0.9", '"bonded"'])
 def test_the_closed_loop_closes_on_the_rest_pose(tmp_path, pad):
     """Issue 39 acceptance: a pad of 0.9 on a 0.6 / 0.25 floor, the truth's floor friction
