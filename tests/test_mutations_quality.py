@@ -103,17 +103,17 @@ def test_a_block_nudged_off_equilibrium_is_reported_out_of_balance():
     check must report and measure (the un-nudged state: 100x less)."""
     from dataclasses import replace
 
-    from fe_contact import Release, ReleaseSchedule, rest_check, step
+    from fe_contact import Release, ReleaseSchedule, rest_check
 
     model = Model(block_mesh((0.04, 0.03, 0.02), (2, 2, 1)), Material(2e6, 0.3, density=1000.0),
                   Friction(0.6, 0.2, math.radians(20)), quadrature=2)
     state, reports = run(model, [Command(dz=-4e-4)])
     assert reports[-1].converged
     schedule = ReleaseSchedule(model, Release("lift", 4), state, reports[-1])
-    plain = rest_check(model, state, reports[-1], schedule, step)
+    plain = rest_check(model, state, reports[-1], schedule)
     assert not plain.settled and "pad still carries" in plain.reason  # the plate presses
     nudge = 1e-9 * np.random.default_rng(0).standard_normal(state.displacement.shape)
-    nudged = rest_check(model, replace(state, displacement=state.displacement + nudge), reports[-1], schedule, step)
+    nudged = rest_check(model, replace(state, displacement=state.displacement + nudge), reports[-1], schedule)
     assert 1e-7 * model.weight < nudged.imbalance < 1e-2 * model.weight  # far above 1e-9, far below the weight
     assert plain.imbalance < 1e-2 * nudged.imbalance
     assert "out of balance" in nudged.reason

@@ -322,11 +322,10 @@ class Rest:
         return self.status == "settled"
 
 
-def rest_check(model: Model, state: State, report: StepReport, schedule: ReleaseSchedule, step=None) -> Rest:
+def rest_check(model: Model, state: State, report: StepReport, schedule: ReleaseSchedule) -> Rest:
     """:class:`Rest` of ``state``, the end of a release (``report`` its last
     step's) run by ``schedule``; the one more step, from ``state`` (not
-    modified), is :func:`fe_contact.stepping.step.step` (``step``, accepted
-    for the callers that pass it, must be that function).
+    modified), is :func:`fe_contact.stepping.step.step`.
 
     The one more step is judged by its last iterate, converged or not: a null
     step of a stress-free block in the air has no force scale but rounding,
@@ -338,7 +337,7 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
     from .step import step as step_function  # the step module is above this one
 
-    _, further = (step or step_function)(model, state, Command())
+    _, further = step_function(model, state, Command())
     _, further_imbalance = _balance(model, further.displacement,
                                     np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
     motion = float(np.abs(further.displacement - state.displacement).max())

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fe_contact import Command, Model, Release, State, StepReport, StepSequence, rest_check, step
+from fe_contact import Command, Model, Release, State, StepReport, StepSequence, rest_check
 
 from ..config.scenario import pad_friction_dict
 from .summary import Failure, RestSummary, RunStatus, RunSummary, StepSummary
@@ -126,7 +126,7 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
         if run.summary.status != RunStatus.FAILED:
             run.summary.status = RunStatus.COMPLETED
             if release is not None and run.reports:
-                rest = rest_check(model, run.state, run.reports[-1], sequence.schedule, step)
+                rest = rest_check(model, run.state, run.reports[-1], sequence.schedule)
                 run.summary.rest = RestSummary.from_report(run.reports[-1], release.mode, rest,
                                                            pad_friction_dict(model.pad), _pad_slip_at_release(run))
                 _unsettled_is_a_failure(run.summary, run.reports[-1].step_index)
