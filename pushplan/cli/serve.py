@@ -41,7 +41,10 @@ def cmd_serve(args) -> int:
         signal.signal(sig, lambda *_: stop.set())
     print(f"pushplan serve: listening on {server.address}", flush=True)
     try:
-        stop.wait()
+        # a timed wait: the signal may be delivered to one of gRPC's threads, and Python runs its
+        # handler only in the main thread once that thread wakes (an untimed wait could sleep on)
+        while not stop.wait(0.2):
+            pass
     finally:
         server.stop()
     print("pushplan serve: stopped, sessions closed", flush=True)
