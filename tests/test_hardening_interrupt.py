@@ -6,6 +6,7 @@ never by a timer."""
 
 import os
 import signal
+import threading
 import subprocess
 import sys
 from pathlib import Path
@@ -89,7 +90,9 @@ def test_ctrl_c_in_the_parent_during_the_fork_is_raised_after_it_and_ends_the_ch
         pid = real_fork()
         if pid:
             children.append(pid)
-            os.kill(os.getpid(), signal.SIGINT)  # held back until the fork is complete
+            # to this thread: the mask that holds SIGINT back is per thread, and the test process
+            # (an xdist worker) has other threads, which a process-directed signal may reach
+            signal.pthread_kill(threading.get_ident(), signal.SIGINT)  # held back until the fork is complete
         return pid
 
     monkeypatch.setattr(os, "fork", fork)
