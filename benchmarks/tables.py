@@ -18,6 +18,7 @@ their own heading. Per-run raw timings (``runs``, ``raw``) and embedded output d
 from __future__ import annotations
 
 import json
+import statistics
 import sys
 from pathlib import Path
 
@@ -144,8 +145,27 @@ def machine_line(data: dict) -> str:
     return "Machine: " + ", ".join(f"{k} {fmt(m[k])}" for k in keys if k in m) + "."
 
 
+def with_coverage_summary(data: dict) -> dict:
+    """Cases of an interval-coverage run (``truth`` and per case ``runs`` of identified
+    parameters, ``identify.py --coverage``) with two derived columns: the draws whose
+    linearised (noise-only) 95 % interval ``estimate +- 1.96 sigma_linearised`` holds the
+    truth, and the median reported sigma, each per parameter."""
+    truth, cases = data.get("truth"), data.get("cases")
+    if not isinstance(truth, dict) or not is_records(cases) or not all(is_records(c.get("runs")) for c in cases):
+        return data
+    out = []
+    for case in cases:
+        runs = [r for r in case["runs"] if all(isinstance(r.get(k), dict) for k in truth)]
+        noise = [sum(abs(r[k]["estimate"] - t) <= 1.96 * r[k]["sigma_linearised"] for r in runs) for k, t in truth.items()]
+        sigma = [statistics.median(r[k]["sigma"] for r in runs) if runs else None for k in truth]
+        names = " / ".join(truth)
+        out.append({**case, f"noise-only covered ({names})": " / ".join(map(str, noise)),
+                    f"median sigma ({names})": " / ".join(fmt(x) for x in sigma)})
+    return {**data, "cases": out}
+
+
 def render_file(path: Path) -> list[str]:
-    data = json.loads(path.read_text())
+    data = with_coverage_summary(json.loads(path.read_text()))
     out = [f"## {path.name}", "", f"Written by {script_of(path.stem)}. {machine_line(data)}", ""]
     if isinstance(data, dict):
         return out + render_mapping(data, "", 3)
