@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
-LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "studies", "service",
+LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "drake", "studies", "service",
           "cli")
 PEERS = {"studies": {"planning"}, "mujoco": {"planning"}}  # sideways imports allowed
 # fe_contact's layers, lowest first
