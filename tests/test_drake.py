@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from pushplan.config.scenario import parse_scenario
+from pushplan.errors import InputError
 from pushplan.planning import PushModel, plan
 
 from test_push_model import COMMANDS, SCENARIO
@@ -34,21 +35,30 @@ planning_quadrature = 2
 """
 
 
-def test_missing_pydrake_names_the_extra():
+def _run(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+
+
+def test_missing_pydrake_names_the_extra():  # runs with or without pydrake
     code = "import sys; sys.modules['pydrake'] = None\nimport pushplan.drake"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    out = _run(code)
     assert out.returncode == 1
     assert out.stderr.strip().splitlines()[-1] == ("ImportError: pushplan.drake needs pydrake: "
                                                   "pip install 'pushplan[drake]'")
 
 
-pytest.importorskip("pydrake", reason="pydrake is the extra 'drake' (pip install 'pushplan[drake]'; CI installs it)")
+try:
+    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+    from pydrake.solvers import MathematicalProgram
+    from pydrake.systems.analysis import Simulator
 
-from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff  # noqa: E402
-from pydrake.solvers import MathematicalProgram  # noqa: E402
-from pydrake.systems.analysis import Simulator  # noqa: E402
-
-from pushplan.drake import add_push_constraint, arm_diagram, block_wrench, plan_to_target  # noqa: E402
+    from pushplan.drake import add_push_constraint, arm_diagram, block_wrench, plan_to_target
+except ImportError:
+    HAVE_DRAKE = False
+else:
+    HAVE_DRAKE = True
+needs_drake = pytest.mark.skipif(not HAVE_DRAKE, reason="pydrake is the extra 'drake' (pip install "
+                                 "'pushplan[drake]'; the test extra, so CI, installs it)")
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +74,7 @@ def _wrist_reaction(plant, context) -> np.ndarray:
     return np.concatenate([R.multiply(F.rotational()), R.multiply(F.translational())])
 
 
+@needs_drake
 def test_wrist_reaction_is_the_fe_gripper_force(push):
     diagram, plant, fe = arm_diagram(push, period=0.01)
     simulator = Simulator(diagram)
@@ -85,6 +96,18 @@ def test_wrist_reaction_is_the_fe_gripper_force(push):
     assert np.allclose(applied.F_Bq_W.translational(), -forces[-1], rtol=1e-12, atol=0)  # the reaction's sign
 
 
+@needs_drake
+def test_a_refused_gripper_command_is_named(push):
+    diagram, _, fe = arm_diagram(push, period=0.01)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.get_input_port(0).FixValue(context, [0.05, 0.0, 0.0])  # 5 cm in one period: longer than the block
+    with pytest.raises(InputError, match=r"gripper_command \[0.05, 0.0, 0.0\] at t = 0 s.*longer than the block"):
+        simulator.AdvanceTo(0.005)
+    assert fe.held(fe.GetMyContextFromRoot(context)).steps == 0
+
+
+@needs_drake
 def test_moment_balance_is_the_reported_moment(push):
     state = push.pressed.state
     for command in COMMANDS:
@@ -95,6 +118,7 @@ def test_moment_balance_is_the_reported_moment(push):
         assert np.abs(wrench[:2]).max() > 10 * abs(wrench[2])  # the tilt moments the FE report does not carry
 
 
+@needs_drake
 def test_autodiff_gradient_is_the_exact_jacobian(push):
     prog = MathematicalProgram()
     z = prog.NewContinuousVariables(2, 3, "z")
@@ -110,6 +134,7 @@ def test_autodiff_gradient_is_the_exact_jacobian(push):
     assert np.array_equal(binding.evaluator().Eval(w), push.rollout(COMMANDS)[-1])  # doubles: the value only
 
 
+@needs_drake
 def test_mathematical_program_reaches_the_target_as_pushplan_plan_does():
     scenario = parse_scenario(tomllib.loads(PLAN_SCENARIO))
     planned = plan(scenario, baseline=False)  # what `pushplan plan` runs

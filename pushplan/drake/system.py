@@ -5,6 +5,8 @@ The system holds the FE state (displacements, contact forces, slip paths: path
 dependent) in its abstract state and advances it by one FE step
 (:meth:`PushModel.step_report`) at each periodic update whose command differs from
 the held gripper pose; between updates its outputs are those of the held state.
+A command the FE model refuses (not finite, a move longer than the block) raises
+:class:`~pushplan.errors.InputError` naming it; a step that fails, ``PlanningError``.
 
 Wrench on the block about the plate's centre ``c`` (the upper face's current centre),
 FE frame: the force is the step's ``upper_force`` (what pushplan reports, N); the
@@ -32,6 +34,7 @@ from pydrake.systems.framework import LeafSystem
 
 from fe_contact import State, StepReport
 
+from ..errors import InputError
 from ..planning.push_model import PushModel
 
 
@@ -127,7 +130,11 @@ class FePushSystem(LeafSystem):
         increment = command - held.gripper
         if not increment.any():
             return
-        fe_state, report = self.push.step_report(held.state, increment)
+        try:
+            fe_state, report = self.push.step_report(held.state, increment)
+        except InputError as e:
+            raise InputError(f"gripper_command {command.tolist()} at t = {context.get_time():g} s, "
+                             f"a move of {increment.tolist()} from the held pose: {e}") from None
         state.get_mutable_abstract_state(self._index).set_value(self._held(fe_state, report, held.steps + 1))
 
     def _pose(self, context, output) -> None:
