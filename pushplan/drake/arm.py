@@ -10,7 +10,8 @@ between the arm and a massless hand reads: docs/conventions.md).  The plant is
 continuous, so that the reaction port and the body's pose belong to the same state: a
 discrete plant (``time_step > 0``, Drake 1.51) reports the reaction in the joint frame of
 the configuration at the start of its last step (rotated with the current pose it was
-0.37 N off on this arm after 5 ms; its magnitude agreed to 2e-16).
+0.37 N off on this arm after 5 ms; turned with the pose at the step's start, it is the
+applied force to rounding).
 """
 
 from __future__ import annotations
