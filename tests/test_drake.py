@@ -12,6 +12,7 @@ import tomllib
 import numpy as np
 import pytest
 
+from pushplan.config.plan import parse_plan
 from pushplan.config.scenario import parse_scenario
 from pushplan.errors import InputError
 from pushplan.planning import PushModel, plan
@@ -147,3 +148,11 @@ def test_mathematical_program_reaches_the_target_as_pushplan_plan_does():
     assert np.all(np.hypot(ours.commands[:, 0], ours.commands[:, 1]) <= planned.spec.max_step * (1 + 1e-6))
     assert np.all(ours.commands[:, 2] == 0)  # no yaw target: no turn
     assert 0 < ours.rollouts <= 50
+
+
+@needs_drake
+def test_the_solver_stops_at_its_iteration_cap_and_says_so():
+    scenario = parse_scenario(tomllib.loads(PLAN_SCENARIO))
+    capped = plan_to_target(scenario, max_iterations=1)  # SNOPT needs 3 major iterations here
+    assert not capped.success and not capped.reached and capped.error > parse_plan(scenario).tolerance
+    assert capped.rollouts <= 5

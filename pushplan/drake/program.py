@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-from pydrake.solvers import IpoptSolver, MathematicalProgram, NloptSolver, SnoptSolver
+from pydrake.solvers import IpoptSolver, MathematicalProgram, NloptSolver, SnoptSolver, SolverOptions
 
 from ..config.plan import PlanSpec, parse_plan
 from ..config.scenario import Scenario
@@ -29,6 +29,8 @@ from ..planning.target import naive_commands, pose_error, within_tolerance
 
 SOLVERS = (SnoptSolver, IpoptSolver, NloptSolver)
 """Tried in this order: the first available solves."""
+MAX_ITERATIONS = 30
+"""Default cap on the solver's iterations (SNOPT spent 6 FE rollouts on the test's and the benchmark's plans)."""
 
 
 def _components(spec: PlanSpec) -> list[int]:
@@ -90,21 +92,29 @@ class DrakePlan:
     wall_time: float
 
 
-def _solver():
+def _solver(max_iterations: int):
+    """The first available of :data:`SOLVERS` and its options capping the iterations
+    (SNOPT's major iterations, IPOPT's, NLopt's evaluations)."""
     for cls in SOLVERS:
         solver = cls()
         if solver.available() and solver.enabled():
-            return solver
+            options = SolverOptions()
+            name = {SnoptSolver: "Major iterations limit", IpoptSolver: "max_iter",
+                    NloptSolver: NloptSolver.MaxEvalName()}[cls]
+            options.SetOption(solver.solver_id(), name, int(max_iterations))
+            return solver, options
     raise RuntimeError("no nonlinear solver in this pydrake (SNOPT, IPOPT or NLopt)")
 
 
-def plan_to_target(scenario: Scenario, spec: PlanSpec | None = None, push: PushModel | None = None) -> DrakePlan:
+def plan_to_target(scenario: Scenario, spec: PlanSpec | None = None, push: PushModel | None = None,
+                   max_iterations: int = MAX_ITERATIONS) -> DrakePlan:
     """Plan ``spec`` (default the scenario's ``[plan]``) as a ``MathematicalProgram``:
     least effort ``sum |u / s|^2`` subject to the FE rollout's final pose at the
     target (within a hundredth of the tolerances) and each step within ``max_step``
     (and ``max_dtheta``, or no turn without a yaw target), on the scenario's own mesh
     (``push``, default built from it: the mesh ``pushplan plan`` verifies on).  The
-    solver starts from the naive commands."""
+    solver starts from the naive commands; its iterations are capped at
+    ``max_iterations`` (each costs one or a few FE rollouts with their Jacobians)."""
     spec = spec or parse_plan(scenario)
     push = push or PushModel.from_scenario(scenario)
     K, comps = spec.steps, _components(spec)
@@ -119,8 +129,8 @@ def plan_to_target(scenario: Scenario, spec: PlanSpec | None = None, push: PushM
     slack = 0.01 * np.array([spec.tolerance, spec.tolerance, spec.yaw_tolerance])[comps]
     add_push_constraint(prog, push, z, scale, comps, target - slack, target + slack)
     prog.SetInitialGuess(z, naive_commands(spec) / scale)
-    solver, before, t0 = _solver(), push.rollouts_run, time.perf_counter()
-    result = solver.Solve(prog)
+    (solver, options), before, t0 = _solver(max_iterations), push.rollouts_run, time.perf_counter()
+    result = solver.Solve(prog, None, options)
     commands = result.GetSolution(z) * scale
     final = push.rollout(commands)[-1]
     return DrakePlan(commands, final, pose_error(final, spec)[0], within_tolerance(final, spec),
