@@ -65,6 +65,12 @@ class Held:
     wrench: np.ndarray
     steps: int = 0
 
+    def __deepcopy__(self, memo) -> "Held":
+        """Itself: Drake copies abstract state by ``deepcopy`` (at every unrestricted update
+        and context clone); a step never changes a held state but makes a new one
+        (``drive`` never mutates its start state), so contexts may share it."""
+        return self
+
 
 class FePushSystem(LeafSystem):
     """A pressed FE block as a Drake system (module docstring).
