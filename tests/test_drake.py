@@ -57,7 +57,8 @@ try:
     from pydrake.systems.primitives import TrajectorySource
     from pydrake.trajectories import PiecewisePolynomial
 
-    from pushplan.drake import FePushSystem, add_push_constraint, arm_diagram, block_wrench, plan_to_target
+    from pushplan.drake import (FePushSystem, add_push_constraint, add_push_cost, arm_diagram, block_wrench,
+                                plan_to_target)
 except ImportError:
     HAVE_DRAKE = False
 else:
@@ -151,7 +152,7 @@ def test_moment_balance_is_the_reported_moment(push):
 
 
 @needs_drake
-def test_autodiff_gradient_is_the_exact_jacobian(push):
+def test_autodiff_gradients_are_the_exact_jacobian(push):
     prog = MathematicalProgram()
     z = prog.NewContinuousVariables(2, 3, "z")
     scale = np.array([1e-3, 1e-3, 0.05])
@@ -164,6 +165,13 @@ def test_autodiff_gradient_is_the_exact_jacobian(push):
     assert np.array_equal(ExtractValue(out).ravel(), jac.poses[-1])
     assert np.abs(ExtractGradient(out) - expected).max() <= 1e-12 * np.abs(expected).max()
     assert np.array_equal(binding.evaluator().Eval(w), push.rollout(COMMANDS)[-1])  # doubles: the value only
+    target, weights = np.array([1e-3, 1e-3]), np.array([2e6, 3e6])
+    cost = add_push_cost(prog, push, z, scale, [0, 1], target, weights)
+    value = cost.evaluator().Eval(InitializeAutoDiff(w, dz_dw))
+    miss = jac.poses[-1, :2] - target
+    assert ExtractValue(value).item() == pytest.approx((weights * miss ** 2).sum(), rel=1e-14)
+    expected = 2 * (weights * miss) @ expected[:2]
+    assert np.abs(ExtractGradient(value).ravel() - expected).max() <= 1e-12 * np.abs(expected).max()
 
 
 @needs_drake

@@ -4,8 +4,8 @@
              pose and the reaction on the gripper (``ExternallyAppliedSpatialForce``) out
 ``arm``      a small 5-joint arm (our own URDF: Drake's arm models are downloaded at run
              time) and :func:`arm_diagram`, the system wired to its end body
-``program``  the FE rollout in a ``MathematicalProgram`` with its exact gradient
-             (AutoDiffXd), :func:`plan_to_target`
+``program``  the FE rollout as a ``MathematicalProgram`` constraint or cost with its
+             exact gradient (AutoDiffXd), :func:`plan_to_target`
 
 Contract (docs/plugins.md, "Drake"): SI units and radians; commands and poses are
 :class:`~pushplan.planning.PushModel`'s; forces in Drake are Drake's (the force on
@@ -19,8 +19,8 @@ except ImportError:
     raise ImportError("pushplan.drake needs pydrake: pip install 'pushplan[drake]'") from None
 
 from .arm import ARM_URDF, arm_diagram
-from .program import DrakePlan, add_push_constraint, plan_to_target
+from .program import DrakePlan, add_push_constraint, add_push_cost, plan_to_target
 from .system import FePushSystem, block_wrench
 
-__all__ = ["ARM_URDF", "DrakePlan", "FePushSystem", "add_push_constraint", "arm_diagram", "block_wrench",
-           "plan_to_target"]
+__all__ = ["ARM_URDF", "DrakePlan", "FePushSystem", "add_push_constraint", "add_push_cost", "arm_diagram",
+           "block_wrench", "plan_to_target"]

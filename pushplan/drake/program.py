@@ -1,6 +1,6 @@
-"""The FE rollout in a Drake ``MathematicalProgram``: a constraint on the final
-lower-face pose with its exact gradient through ``AutoDiffXd``, and a plan to a
-scenario's ``[plan]`` target solved by a Drake solver.
+"""The FE rollout in a Drake ``MathematicalProgram``: a constraint on (or a cost of)
+the final lower-face pose with its exact gradient through ``AutoDiffXd``, and a plan to
+a scenario's ``[plan]`` target solved by a Drake solver.
 
 Chain rule at the boundary: Drake evaluates a constraint on ``AutoDiffXd`` variables
 ``z`` carrying ``dz/dw`` (its own decision variables ``w``); the rollout gives the
@@ -37,13 +37,10 @@ def _components(spec: PlanSpec) -> list[int]:
     return [0, 1, 2] if spec.yaw_targeted else [0, 1]
 
 
-def add_push_constraint(prog: MathematicalProgram, push: PushModel, z, scale, components, lower, upper):
-    """Constrain the final lower-face pose of the FE rollout of the commands
-    ``u = scale * z`` (``z`` (K, 3) decision variables, ``scale`` (3,) m and rad) from
-    the press: ``lower <= pose[-1, components] <= upper`` (m, rad), with the exact
-    gradient.  Returns the ``Binding``."""
-    z = np.asarray(z)
-    K, scale, comps = z.shape[0], np.asarray(scale, float), list(components)
+def _final_pose(push: PushModel, K: int, scale, components):
+    """``w -> pose[-1, components]`` of the FE rollout of ``u = scale * w`` (K, 3), on
+    doubles (a rollout) or on ``AutoDiffXd`` (the chain rule of the module docstring)."""
+    scale, comps = np.asarray(scale, float), list(components)
 
     def final_pose(w):
         if w.dtype != object:  # plain doubles: the value only
@@ -54,8 +51,32 @@ def add_push_constraint(prog: MathematicalProgram, push: PushModel, z, scale, co
         gradient = dp_du * np.tile(scale, K) @ dz_dw
         return InitializeAutoDiff(jac.poses[-1, comps], gradient).ravel()
 
-    return prog.AddConstraint(final_pose, np.asarray(lower, float), np.asarray(upper, float), z.ravel(),
-                              description="fe_final_pose")
+    return final_pose
+
+
+def add_push_constraint(prog: MathematicalProgram, push: PushModel, z, scale, components, lower, upper):
+    """Constrain the final lower-face pose of the FE rollout of the commands
+    ``u = scale * z`` (``z`` (K, 3) decision variables, ``scale`` (3,) m and rad) from
+    the press: ``lower <= pose[-1, components] <= upper`` (m, rad), with the exact
+    gradient.  Returns the ``Binding``."""
+    z = np.asarray(z)
+    return prog.AddConstraint(_final_pose(push, z.shape[0], scale, components), np.asarray(lower, float),
+                              np.asarray(upper, float), z.ravel(), description="fe_final_pose")
+
+
+def add_push_cost(prog: MathematicalProgram, push: PushModel, z, scale, components, target, weights):
+    """Add the cost ``sum_i weights[i] (pose[-1, components[i]] - target[i])^2`` of the
+    FE rollout of ``u = scale * z`` (as :func:`add_push_constraint`; ``target`` m and
+    rad, ``weights`` per m^2 or rad^2), with the exact gradient.  Returns the ``Binding``."""
+    z = np.asarray(z)
+    pose = _final_pose(push, z.shape[0], scale, components)
+    target, weights = np.asarray(target, float), np.asarray(weights, float)
+
+    def cost(w):
+        miss = pose(w) - target
+        return (weights * miss * miss).sum()
+
+    return prog.AddCost(cost, z.ravel(), description="fe_final_miss")
 
 
 @dataclass(frozen=True)
