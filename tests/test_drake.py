@@ -195,3 +195,22 @@ def test_the_solver_stops_at_its_iteration_cap_and_says_so():
     capped = plan_to_target(scenario, max_iterations=1)  # SNOPT needs 3 major iterations here
     assert not capped.success and not capped.reached and capped.error > parse_plan(scenario).tolerance
     assert capped.rollouts <= 5
+
+
+@needs_drake
+@pytest.mark.parametrize("solver", [pytest.param("IPOPT", marks=pytest.mark.slow), "NLopt"])  # IPOPT: 13 s at load 10
+def test_the_other_drake_solvers_reach_the_target_too(solver):
+    scenario = parse_scenario(tomllib.loads(PLAN_SCENARIO))
+    ours = plan_to_target(scenario, solver=solver)
+    assert ours.solver == {"IPOPT": "Ipopt", "NLopt": "NLopt"}[solver] and ours.success and ours.reached
+    assert ours.error <= 0.02 * parse_plan(scenario).tolerance
+    with pytest.raises(InputError, match="solver must be one of SNOPT, IPOPT, NLopt, got 'snopt'"):
+        plan_to_target(scenario, solver="snopt")
+
+
+@needs_drake
+def test_a_solver_that_gives_up_with_nan_is_not_reached_nor_bad_input():
+    # on the 2 x 2 x 1 mesh NLopt (deterministic) probes NaN commands for this target and gives up with them
+    scenario = parse_scenario(tomllib.loads(PLAN_SCENARIO.replace("elements = [4, 4, 2]", "elements = [2, 2, 1]")))
+    ours = plan_to_target(scenario, solver="NLopt")
+    assert np.isnan(ours.commands).any() and not ours.reached and not ours.success and ours.error == np.inf

@@ -24,6 +24,7 @@ from pydrake.solvers import IpoptSolver, MathematicalProgram, NloptSolver, Snopt
 
 from ..config.plan import PlanSpec, parse_plan
 from ..config.scenario import Scenario
+from ..errors import InputError
 from ..planning.push_model import PushModel
 from ..planning.target import naive_commands, pose_error, within_tolerance
 
@@ -43,9 +44,13 @@ def _final_pose(push: PushModel, K: int, scale, components):
     scale, comps = np.asarray(scale, float), list(components)
 
     def final_pose(w):
+        values = ExtractValue(w).ravel() if w.dtype == object else np.asarray(w, float)
+        if not np.isfinite(values).all():  # a solver probing: "cannot evaluate here", not bad input
+            nan = np.full(len(comps), np.nan)
+            return nan if w.dtype != object else InitializeAutoDiff(nan, np.full((len(comps), w.size), np.nan)).ravel()
         if w.dtype != object:  # plain doubles: the value only
-            return push.rollout(w.reshape(K, 3) * scale)[-1, comps]
-        values, dz_dw = ExtractValue(w).ravel(), ExtractGradient(w)
+            return push.rollout(values.reshape(K, 3) * scale)[-1, comps]
+        dz_dw = ExtractGradient(w)
         jac = push.rollout_with_jacobian(values.reshape(K, 3) * scale)
         dp_du = jac.d_commands[-1, comps].reshape(len(comps), 3 * K)
         gradient = dp_du * np.tile(scale, K) @ dz_dw
@@ -113,10 +118,14 @@ class DrakePlan:
     wall_time: float
 
 
-def _solver(max_iterations: int):
-    """The first available of :data:`SOLVERS` and its options capping the iterations
-    (SNOPT's major iterations, IPOPT's, NLopt's evaluations)."""
-    for cls in SOLVERS:
+def _solver(max_iterations: int, name: str | None = None):
+    """The first available of :data:`SOLVERS` (or the one ``name``d: ``"SNOPT"``,
+    ``"IPOPT"``, ``"NLopt"``) and its options capping the iterations (SNOPT's major
+    iterations, IPOPT's, NLopt's evaluations)."""
+    names = {"SNOPT": SnoptSolver, "IPOPT": IpoptSolver, "NLopt": NloptSolver}
+    if name is not None and name not in names:
+        raise InputError(f"solver must be one of {', '.join(names)}, got {name!r}")
+    for cls in SOLVERS if name is None else (names[name],):
         solver = cls()
         if solver.available() and solver.enabled():
             options = SolverOptions()
@@ -124,18 +133,19 @@ def _solver(max_iterations: int):
                     NloptSolver: NloptSolver.MaxEvalName()}[cls]
             options.SetOption(solver.solver_id(), name, int(max_iterations))
             return solver, options
-    raise RuntimeError("no nonlinear solver in this pydrake (SNOPT, IPOPT or NLopt)")
+    raise RuntimeError(f"no {name or 'nonlinear solver (SNOPT, IPOPT or NLopt)'} in this pydrake")
 
 
 def plan_to_target(scenario: Scenario, spec: PlanSpec | None = None, push: PushModel | None = None,
-                   max_iterations: int = MAX_ITERATIONS) -> DrakePlan:
+                   max_iterations: int = MAX_ITERATIONS, solver: str | None = None) -> DrakePlan:
     """Plan ``spec`` (default the scenario's ``[plan]``) as a ``MathematicalProgram``:
     least effort ``sum |u / s|^2`` subject to the FE rollout's final pose at the
     target (within a hundredth of the tolerances) and each step within ``max_step``
     (and ``max_dtheta``, or no turn without a yaw target), on the scenario's own mesh
     (``push``, default built from it: the mesh ``pushplan plan`` verifies on).  The
-    solver starts from the naive commands; its iterations are capped at
-    ``max_iterations`` (each costs one or a few FE rollouts with their Jacobians)."""
+    solver (``solver``, default the first available of :data:`SOLVERS`) starts from the
+    naive commands; its iterations are capped at ``max_iterations`` (each costs one or a
+    few FE rollouts with their Jacobians)."""
     spec = spec or parse_plan(scenario)
     push = push or PushModel.from_scenario(scenario)
     K, comps = spec.steps, _components(spec)
@@ -150,9 +160,13 @@ def plan_to_target(scenario: Scenario, spec: PlanSpec | None = None, push: PushM
     slack = 0.01 * np.array([spec.tolerance, spec.tolerance, spec.yaw_tolerance])[comps]
     add_push_constraint(prog, push, z, scale, comps, target - slack, target + slack)
     prog.SetInitialGuess(z, naive_commands(spec) / scale)
-    (solver, options), before, t0 = _solver(max_iterations), push.rollouts_run, time.perf_counter()
-    result = solver.Solve(prog, None, options)
+    (nlp, options), before, t0 = _solver(max_iterations, solver), push.rollouts_run, time.perf_counter()
+    result = nlp.Solve(prog, None, options)
     commands = result.GetSolution(z) * scale
+    if not np.isfinite(commands).all():  # a solver that gave up with NaN (NLopt can)
+        final = np.full(3, np.nan)
+        return DrakePlan(commands, final, np.inf, False, result.get_solver_id().name(), False,
+                         push.rollouts_run - before, time.perf_counter() - t0)
     final = push.rollout(commands)[-1]
     return DrakePlan(commands, final, pose_error(final, spec)[0], within_tolerance(final, spec),
                      result.get_solver_id().name(), result.is_success(), push.rollouts_run - before - 1,
