@@ -128,3 +128,14 @@ def test_a_frictional_pad_has_exact_jacobians_too():
             um[j, c] -= h
             fd[:, :, j, c] = (push.rollout(up) - push.rollout(um)) / (2 * h)
     assert np.abs(fd - jac.d_commands).max() <= REL_TOL * np.abs(fd).max()
+
+
+def test_step_report_is_one_step_of_a_rollout(push):
+    state, report = push.step_report(push.pressed.state, COMMANDS[0])
+    _, report2 = push.step_report(state, COMMANDS[1])
+    poses, forces = push.rollout_with_forces(COMMANDS)
+    assert np.array_equal([*report2.lower_centroid[:2], report2.lower_yaw], poses[-1])
+    assert np.array_equal(report.upper_force, forces[0]) and np.array_equal(report2.upper_force, forces[1])
+    assert np.array_equal(push.step(state, COMMANDS[1])[1], poses[-1])
+    with pytest.raises(InputError, match=r"command must be one \(dx, dy, dtheta\), got shape \(2, 3\)"):
+        push.step_report(state, COMMANDS)

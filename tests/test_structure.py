@@ -26,7 +26,7 @@ SPLIT_ELSEWHERE = {
     "pushplan/config/plan.py:parse_plan",
 }
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
-LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "studies", "service",
+LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "drake", "studies", "service",
           "cli")
 PEERS = {"studies": {"planning"}, "mujoco": {"planning"}}  # sideways imports allowed
 # fe_contact's layers, lowest first

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import casadi
 import numpy as np
 
-from fe_contact import PARAMETERS, Model, RolloutDerivatives, State, applicable_parameters, rollout_derivatives  # noqa: F401 (PARAMETERS: re-exported)
+from fe_contact import PARAMETERS, Model, RolloutDerivatives, State, StepReport, applicable_parameters, rollout_derivatives  # noqa: F401 (PARAMETERS: re-exported)
 
 from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..config.plan import press_commands
@@ -163,9 +163,22 @@ class PushModel:
         PlanningError
             The step did not converge.
         """
-        run = self._drive(self.commands(command), state)
-        report = run.reports[-1]
-        return run.state, np.array([*report.lower_centroid[:2], report.lower_yaw])
+        state, report = self.step_report(state, command)
+        return state, np.array([*report.lower_centroid[:2], report.lower_yaw])
+
+    def step_report(self, state: State, command) -> tuple[State, StepReport]:
+        """:meth:`step` with the step's whole :class:`fe_contact.StepReport` (forces
+        on the block, the gripper's wrench, contact state) instead of the pose.
+
+        Raises
+        ------
+        InputError, PlanningError
+        """
+        a = self.commands(command)
+        if a.shape[0] != 1:
+            raise InputError(f"command must be one (dx, dy, dtheta), got shape {np.shape(command)}")
+        run = self._drive(a, state)
+        return run.state, run.reports[-1]
 
     def _drive(self, commands: np.ndarray, state: State):
         run = drive(self.model, planar_commands(commands), state)
