@@ -131,14 +131,16 @@ class RobustResult:
 
 
 class SigmaRollouts:
-    """One pressed FE model on the verification mesh per sigma point."""
+    """One pressed FE model on the verification mesh per sigma point (``after``: the pushes
+    executed after the press, applied once to each; poses are then relative to where they
+    leave it, as :class:`~.rollouts.FeRollouts` has them)."""
 
-    def __init__(self, scenario: Scenario, distribution: Distribution, spec: PlanSpec):
+    def __init__(self, scenario: Scenario, distribution: Distribution, spec: PlanSpec, after=()):
         self.spec = spec
         self.points, self.weights = distribution.sigma_points()
         press = press_commands(scenario)
         self.fe = [FeRollouts(distribution.scenario(scenario, theta).model(), press, f"sigma point {i}",
-                              release=scenario.release) for i, theta in enumerate(self.points)]
+                              release=scenario.release, after=tuple(after)) for i, theta in enumerate(self.points)]
         # exact command Jacobians of the loaded final pose with a bonded pad
         self.exact = spec.target_state == "loaded" and scenario.pad is None
 
@@ -309,12 +311,13 @@ def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None,
 
 
 def monte_carlo(scenario: Scenario, distribution: Distribution, spec: PlanSpec, plans: dict,
-                truths: np.ndarray) -> tuple[dict, int]:
-    """Step 5: ``{name: MonteCarlo}`` of the commands ``plans[name]`` over ``truths``, and the FE rollouts run."""
+                truths: np.ndarray, after=()) -> tuple[dict, int]:
+    """Step 5: ``{name: MonteCarlo}`` of the commands ``plans[name]`` over ``truths`` (each
+    from the state ``after`` leaves), and the FE rollouts run."""
     press, finals, n = press_commands(scenario), {k: [] for k in plans}, 0
     for i, theta in enumerate(truths):
         fe = FeRollouts(distribution.scenario(scenario, theta).model(), press, f"truth {i}",
-                        release=scenario.release)
+                        release=scenario.release, after=tuple(after))
         for name, u in plans.items():
             finals[name].append(fe.rollout(u).final(spec.target_state))
         n += fe.count
@@ -323,9 +326,12 @@ def monte_carlo(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
 
 
 def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, nominal: PlanResult,
-                log=None) -> RobustResult:
+                log=None, after=()) -> RobustResult:
     """The robust plan of the module docstring from the ``nominal`` plan of ``scenario``
-    (whose parameters are the distribution's mean) and its Monte Carlo check.
+    (whose parameters are the distribution's mean) and its Monte Carlo check.  ``after``:
+    the pushes executed after the press (a re-plan, :mod:`.replan`; ``spec`` and
+    ``nominal`` relative to the pose they leave); the sigma points and the truths start
+    from the state they leave in each.
 
     Raises
     ------
@@ -335,7 +341,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
         The distribution's draws are mostly unphysical (:meth:`Distribution.sample`).
     """
     t0 = time.perf_counter()
-    sigma = SigmaRollouts(scenario, distribution, spec)
+    sigma = SigmaRollouts(scenario, distribution, spec, after)
     evals = refine(sigma, nominal.commands, spec, log, alternative=slide_start(nominal, distribution, spec))
     t1 = time.perf_counter()
     best = max(range(len(evals)), key=lambda i: (evals[i].probability, -evals[i].objective))
@@ -343,7 +349,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
     reached = ev.probability >= level
     truths, redrawn = distribution.sample(spec.robust.monte_carlo, np.random.default_rng(spec.robust.seed))
     checks, mc_rollouts = monte_carlo(scenario, distribution, spec, {"robust": ev.commands,
-                                                                     "nominal": nominal.commands}, truths)
+                                                                     "nominal": nominal.commands}, truths, after)
     message = (f"predicted probability {ev.probability:.4g} of the final pose within tolerance over the "
                f"identified distribution ({len(sigma.fe)} sigma points) "
                + (f">= level {level:g}" if reached else
