@@ -12,10 +12,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from pushplan.cli import main
+from pushplan.identify.closed_loop import loop_distribution
+from pushplan.planning.distribution import Distribution, pose_moments
 
 from test_closed_loop import MODEL, PLAN, TOLERANCE
 
@@ -29,6 +33,36 @@ def _loop(tmp_path, name, plan_text):
     code = main(["closed-loop", str(tmp_path / f"{name}.toml"), "--truth", str(tmp_path / "truth.toml"), "--out",
                  str(out), "--quiet", "--no-recording", "--identify"])
     return code, json.loads((out / "closed_loop.json").read_text())
+
+
+def test_the_factor_keeps_a_friction_variance_beside_a_modulus_in_pascal():
+    """The sigma points of (mu_x, mu_y, angle, Young): eigh of C in SI units loses the friction
+    variances in the modulus' rounding (it put a sigma point at mu_x = -21); the factor
+    reproduces C to rounding relative to each pair's standard deviations, and the sigma
+    points stay within sqrt(n + 1) standard deviations of the estimate."""
+    sd = np.array([0.0013, 0.0033, 0.25, 8e8])
+    corr = np.array([[1, 0.3, 0.2, 0.9], [0.3, 1, 0.1, 0.2], [0.2, 0.1, 1, 0.1], [0.9, 0.2, 0.1, 1]])
+    d = Distribution(("mu_x", "mu_y", "angle_deg", "young"), np.array([0.39, 0.195, 25.0, 2.1e11]),
+                     corr * np.outer(sd, sd))
+    L = d.factor()
+    assert np.all(np.abs(L @ L.T - d.covariance) <= 1e-12 * np.outer(sd, sd))
+    points, weights = d.sigma_points()
+    assert np.all(np.abs(points - d.mean) <= np.sqrt(5.0) * sd * (1 + 1e-9))
+    mean, cov = pose_moments(points, weights)
+    np.testing.assert_allclose(cov / np.outer(sd, sd), corr, atol=1e-9)
+
+
+def test_the_loop_distribution_holds_undetermined_parameters_at_the_estimate():
+    est = SimpleNamespace(names=("mu_x", "mu_y", "angle_deg", "young"), estimate=np.array([0.39, 0.15, 25.0, 2.1e11]),
+                          sigma=np.array([0.0013, np.inf, 0.25, 8e8]), identifiable=(True, False, True, True),
+                          correlation=np.array([[1.0, np.nan, 0.5, 0.1], [np.nan] * 4, [0.5, np.nan, 1.0, 0.0],
+                                                [0.1, np.nan, 0.0, 1.0]]))
+    d, held = loop_distribution(est)
+    assert d.names == ("mu_x", "angle_deg", "young") and held == ("mu_y",)
+    np.testing.assert_array_equal(d.mean, [0.39, 25.0, 2.1e11])
+    assert d.covariance[0, 1] == 0.5 * 0.0013 * 0.25 and d.covariance[2, 2] == 8e8**2
+    none = SimpleNamespace(**{**vars(est), "identifiable": (False,) * 4})
+    assert loop_distribution(none) == (None, est.names)
 
 
 def test_the_identified_loop_replans_robustly(tmp_path):
