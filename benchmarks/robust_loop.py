@@ -1,7 +1,9 @@
 """Robust re-plans in the closed loop (issue 42 item 4): ``closed-loop --identify`` with and
 without a ``[plan] robust`` table on the same truth, for the steel case of
 ``tests/test_closed_loop.py`` (friction 30 % above the model's) and the shipped
-``scenarios/plan_robust.toml`` (its truth's mu_y 0.17 against the model's 0.15).  Per re-plan
+``scenarios/plan_robust.toml`` (its truth's mu_y 0.17 against the model's 0.15), and the rest
+target with a frictional pad of ``tests/test_episodes.py`` (pad 0.9, the truth's floor +25 %,
+Young +20 %, on a finer mesh).  Per re-plan
 the predicted probability of the robust re-plan and of the nominal one beside it, the
 parameters held at the estimate, the sigma-point FE rollouts; per loop the final error and
 the process wall and CPU time.
@@ -27,6 +29,7 @@ from pushplan.identify.closed_loop import closed_loop
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from test_closed_loop import MODEL, PLAN  # noqa: E402
+from test_episodes import BLOCK, REST_PLAN  # noqa: E402
 
 ROBUST = "robust = {level = 0.9, max_iterations = 4, monte_carlo = 0}\n"
 
@@ -37,7 +40,12 @@ def cases():
     steel_truth = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.39, mu_y=0.195)))
     shipped = load_scenario(ROOT / "scenarios" / "plan_robust.toml")
     shipped_truth = dataclasses.replace(shipped, mu_y=0.17, name="plan_robust_truth")
-    return [("steel, friction +30 %", steel, steel_truth), ("plan_robust, mu_y 0.17", shipped, shipped_truth)]
+    pad = parse_scenario(tomllib.loads('name = "m"' + BLOCK.format(elements=[3, 2, 2], young=2e6, mu_x=0.6, mu_y=0.25,
+                                                                  pad="0.9") + REST_PLAN + ROBUST))
+    pad_truth = parse_scenario(tomllib.loads('name = "t"' + BLOCK.format(elements=[4, 3, 2], young=2.4e6, mu_x=0.75,
+                                                                        mu_y=0.3125, pad="0.9")))
+    return [("steel, friction +30 %", steel, steel_truth), ("plan_robust, mu_y 0.17", shipped, shipped_truth),
+            ("rest target, pad 0.9, floor +25 %, Young +20 %, finer truth", pad, pad_truth)]
 
 
 def one(model, truth, robust: bool) -> dict:

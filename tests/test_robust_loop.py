@@ -126,7 +126,7 @@ REST_IDENTIFIED = {"scenario": "rest_pad", "parameters": {
 def test_a_robust_plan_to_a_rest_target_with_a_frictional_pad(tmp_path):
     """A pad of 0.9 lifted off a 0.6 / 0.25 floor by load control: the rest pose springs back by
     a part of the lag that depends on the friction, no exact derivatives (Broyden-updated
-    Jacobians).  About 60 s: 30 truths, each rolling out both plans with the release."""
+    Jacobians).  About 65 s of CPU: 30 truths, each rolling out both plans with the release."""
     (tmp_path / "case.toml").write_text(REST_PAD)
     (tmp_path / "identified.json").write_text(json.dumps(REST_IDENTIFIED))
     out = tmp_path / "out"
@@ -156,7 +156,7 @@ def test_a_robust_plan_on_rotated_axes_reaches_the_level_with_room_to_slide(tmp_
     direction: the lag built along the badly known axis relaxes only over several steps of
     slide along the well-known one (benchmarks/robust_rotated.py), so with 5 steps the level
     is out of reach (0.47, exit 3) and with 10 the second start slides as long as the bounds
-    allow and reaches 0.9.  About 3 min: 12 evaluations of 7 sigma points, 20 truths."""
+    allow and reaches 0.9.  About 80 s of CPU: 12 evaluations of 7 sigma points, 20 truths."""
     case = (SCENARIOS / "plan_robust.toml").read_text()
     case = (case.replace("mu_x = 0.3\n", "mu_x = 0.4\n").replace("angle_deg = 0.0\n", "angle_deg = 30.0\n")
             .replace("steps = 5\n", "steps = 10\n")
@@ -176,3 +176,29 @@ def test_a_robust_plan_on_rotated_axes_reaches_the_level_with_room_to_slide(tmp_
         lo, hi = mc[name]["interval_95"]
         assert lo <= predicted <= hi, (name, predicted, lo, hi)
     assert mc["robust"]["within_tolerance"] > mc["nominal"]["within_tolerance"]
+
+
+@pytest.mark.slow
+def test_the_identified_loop_to_a_rest_target_replans_robustly(tmp_path):
+    """The rest target of tests/test_episodes.py (a pad of 0.9 lifted off by load control; the
+    truth's floor +25 %, Young +20 %, on a finer mesh) with --identify, nominal and robust
+    re-plans: both within the tolerance, the robust loop no farther from the target, a
+    probability recorded for each re-plan (about 100 s of CPU: identification and sigma points
+    with the release at every push)."""
+    from test_episodes import BLOCK, REST_PLAN
+
+    (tmp_path / "t.toml").write_text('name = "t"' + BLOCK.format(elements=[4, 3, 2], young=2.4e6, mu_x=0.75,
+                                                                  mu_y=0.3125, pad="0.9"))
+    docs = {}
+    for name, robust in (("nominal", ""), ("robust", "robust = {level = 0.9, max_iterations = 4}\n")):
+        (tmp_path / f"{name}.toml").write_text('name = "m"' + BLOCK.format(elements=[3, 2, 2], young=2e6, mu_x=0.6,
+                                                                             mu_y=0.25, pad="0.9") + REST_PLAN + robust)
+        code = main(["closed-loop", str(tmp_path / f"{name}.toml"), "--truth", str(tmp_path / "t.toml"), "--out",
+                     str(tmp_path / name), "--quiet", "--no-recording", "--identify", "--force"])
+        assert code == 0
+        docs[name] = json.loads((tmp_path / name / "closed_loop.json").read_text())
+    nominal, robust = (docs[k]["closed_loop"]["final_error"] for k in ("nominal", "robust"))
+    print(nominal, robust, [it["predicted_probability"] for it in docs["robust"]["iterations"]])
+    assert robust["within_tolerance"] and robust["position"] <= nominal["position"]
+    assert all(it["robust"] is not None for it in docs["robust"]["iterations"][1:])
+    assert docs["robust"]["scored_on"] == "rest pose after the truth's release"
