@@ -98,7 +98,7 @@ def measure_replans(truth_friction: float, refinement: str) -> dict:
     loop.replan = timed
     loop.PlanSession = lambda *a, **k: original(*a, **k, refinement=refinement)
     try:
-        doc = loop.closed_loop(model, truth, spec)
+        doc = loop.closed_loop(model, truth, spec).to_dict()
     finally:
         loop.replan, loop.PlanSession = replan, original
     med = {k: {q: float(np.median([r[k][q] for r in rows])) for q in ("wall_s", "cpu_s")}
@@ -121,7 +121,7 @@ def measure_loops(truth_friction: float, repeat: int) -> dict:
     for _ in range(repeat):
         for name in runs:
             t = _clock()
-            doc = loop.closed_loop(model, truth, spec, warm=name == "warm")
+            doc = loop.closed_loop(model, truth, spec, warm=name == "warm").to_dict()
             wall, cpu = _since(t)
             runs[name].append({"wall_s": wall, "cpu_s": cpu, "final_error": doc["closed_loop"]["final_error"],
                                "push_wall_s": [it["wall_time_s"] for it in doc["iterations"]]})

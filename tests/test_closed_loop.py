@@ -244,15 +244,15 @@ def test_the_warm_closed_loop_ends_as_the_cold_one(tmp_path):
     truth = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.39, mu_y=0.195)))
     spec = parse_plan(model)
     warm, cold = (closed_loop(model, truth, spec, warm=w) for w in (True, False))
-    a, b = (np.array(d["closed_loop"]["final_pose"][:2]) for d in (warm, cold))
+    a, b = (r.final_pose[:2] for r in (warm, cold))
     assert np.hypot(*(a - b)) <= TOLERANCE
-    assert [it["plan_status"] for it in warm["iterations"]] == [it["plan_status"] for it in cold["iterations"]]
-    for d in (warm, cold):
-        for it in d["iterations"]:  # issue 43: each re-plan says why it has its status
-            assert it["plan_message"], it
-            assert it["plan_status"] != "infeasible" or "beyond reach" in it["plan_message"], it
-        assert d["closed_loop"]["final_error"]["within_tolerance"]
-        assert d["closed_loop"]["final_error"]["position"] <= d["open_loop"]["final_error"]["position"]
+    assert [it.plan_status for it in warm.iterations] == [it.plan_status for it in cold.iterations]
+    for r in (warm, cold):
+        for it in r.iterations:  # issue 43: each re-plan says why it has its status
+            assert it.plan_message, it
+            assert it.plan_status != "infeasible" or "beyond reach" in it.plan_message, it
+        assert r.within_tolerance and r.to_dict()["closed_loop"]["final_error"]["within_tolerance"]
+        assert r.position_error <= r.open_position_error
 
 
 LIFT_BLOCK = """

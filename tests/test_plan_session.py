@@ -13,7 +13,9 @@ from pushplan.config import parse_scenario
 from pushplan.config.commands import planar_commands
 from pushplan.config.plan import parse_plan, press_commands
 from pushplan.planning import planner as planner_module
-from pushplan.planning.planner import PlanSession, _start_lag, plan
+from pushplan.planning import calibration as calibration_module
+from pushplan.planning.calibration import start_lag
+from pushplan.planning.planner import PlanSession, plan
 from pushplan.planning.replan import replan
 from pushplan.planning.rollouts import FeRollouts
 from pushplan.planning.target import within_tolerance
@@ -87,7 +89,7 @@ def test_a_push_at_a_time_reaches_the_state_of_one_run(setting):
     for command in executed:
         stepped.advance((command,))
     at_once = FeRollouts(model.model(), _press(model), "t", after=executed)
-    a, b = _start_lag(stepped), _start_lag(at_once)
+    a, b = start_lag(stepped), start_lag(at_once)
     np.testing.assert_allclose(a, b, rtol=STATE_AGREE, atol=STATE_AGREE * np.abs(b).max())
     assert np.abs(a[:2]).max() > 1e-6  # a loaded state, with a lag of micrometres
 
@@ -99,7 +101,7 @@ def test_a_calibration_that_no_longer_predicts_the_lag_is_refitted(setting, monk
     kept.plan(spec, baseline=False)
     kept_result, _ = replan(model, spec, obs, baseline=False, session=kept)
     assert kept.calibrations == 1 and kept.nlp_builds == 1
-    monkeypatch.setattr(planner_module, "CARRY_LAG_FRACTION", 0.0)  # nothing predicts exactly
+    monkeypatch.setattr(calibration_module, "CARRY_LAG_FRACTION", 0.0)  # nothing predicts exactly
     refit = PlanSession(model, spec, verify=False)
     refit.plan(spec, baseline=False)
     refit_result, _ = replan(model, spec, obs, baseline=False, session=refit)

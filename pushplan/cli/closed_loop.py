@@ -1,6 +1,9 @@
 """``pushplan closed-loop SCENARIO --truth TRUTH.toml --out DIR [--identify]``: execute
 the plan of SCENARIO one push at a time on TRUTH (the same block on other friction),
 observe, re-identify (``--identify``), re-plan; compare with the open-loop plan.
+With ``--identify`` and a ``[plan] robust`` table each re-plan is robust
+(:mod:`pushplan.planning.robust`) over the re-identified estimate and covariance, and
+``closed_loop.json`` records its predicted probability per re-plan.
 Writes ``DIR/closed_loop.json`` (each iteration: command, observed pose, the planned
 path behind it, the friction it was planned with, the estimates) and ``DIR/recording.rrd``
 (the truth's closed-loop run; at each push ``plan/replanned``, the plan behind it; the
@@ -24,12 +27,12 @@ CLOSED_LOOP_FILES = ("closed_loop.json", "recording.rrd")
 """What ``closed-loop`` writes in ``--out`` (one transaction: no old recording beside a new JSON)."""
 
 
-def _recording(path, scenario, truth_runs, spec) -> None:
+def _recording(path, scenario, runs, spec) -> None:
     import numpy as np
 
     from ..outputs.recording import Recorder
 
-    closed, open_, planned = truth_runs
+    closed, open_, planned = runs.closed, runs.open, runs.planned
     n_press = len(closed.steps) - len(planned)
     dims = 3 if spec.yaw_targeted else 2
 
@@ -55,28 +58,37 @@ def cmd_closed_loop(args) -> int:
 
     scenario = load_scenario(args.scenario)
     spec = parse_plan(scenario)
+    robust = "robust" in scenario.extra["plan"]  # [plan] robust set: robust re-plans with --identify
     truth = load_scenario(args.truth)
     check_same_block(scenario.to_dict(), truth.to_dict(), args.truth, force=args.force)
     truth.model()
     noise = NoiseModel(args.pose_noise, args.force_noise, args.force_noise_rel, force_resolution=args.force_resolution)
     log = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     with output_transaction(args.out, CLOSED_LOOP_FILES) as tx:
-        doc = closed_loop(scenario, truth, spec, args.identify, noise, log)
-        truth_runs = doc.pop("_truth")
+        result = closed_loop(scenario, truth, spec, args.identify, noise, log, robust=robust)
+        doc = result.to_dict()
         atomic_write_json(tx.path / "closed_loop.json", doc)
         if not args.no_recording:
-            _recording(tx.path / "recording.rrd", scenario, truth_runs, spec)
-    out = tx.out
+            _recording(tx.path / "recording.rrd", scenario, result.runs, spec)
+    _print_summary(scenario, truth, spec, doc, tx.out)
+    return 0 if result.within_tolerance else EXIT_SOLVER_FAILURE
+
+
+def _print_summary(scenario, truth, spec, doc: dict, out) -> None:
+    """The closed and open loop's final errors, the robust re-plans' probabilities and the estimates, on stdout."""
     c, o = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
     print(f"{scenario.name} on {truth.name}: closed loop {c['position'] * 1e6:.3f} um "
           f"({'within' if c['within_tolerance'] else 'outside'} tolerance {spec.tolerance * 1e6:.3g} um), "
           f"open loop {o['position'] * 1e6:.3f} um"
           + (f", {len(doc['episodes'])} episode(s)" if doc["episodes"] else ""))
+    probabilities = [it["predicted_probability"] for it in doc["iterations"] if it["robust"] is not None]
+    if probabilities:
+        print(f"  robust re-plans (level {spec.robust.level:g}): predicted probability "
+              + ", ".join(f"{p:.3f}" for p in probabilities))
     if doc["final_estimates"]:
         print("  final estimates: " + ", ".join(f"{k} = {v['estimate']:.5g} +- {v['sigma'] or float('inf'):.2g}"
                                               for k, v in doc["final_estimates"].items() if k != "fe_rollouts"))
     print(f"  wrote {out / 'closed_loop.json'} ({doc['wall_time_s']:.1f} s)")
-    return 0 if c["within_tolerance"] else EXIT_SOLVER_FAILURE
 
 
 def register(subparsers) -> None:

@@ -119,16 +119,22 @@ def _print_summary(scenario, spec, result, doc: dict, wrote, args) -> None:
     print("  wrote " + ", ".join(str(p) for p in wrote))
 
 
-def cmd_plan(args) -> int:
+def _inputs(args):
+    """The checked inputs of ``plan``: ``(scenario, spec, distribution, start, full_spec)``;
+    the scenario at the identified estimate with ``--identified`` (``distribution`` else
+    None), ``start`` the measured start with ``--from`` (``spec`` its remaining steps,
+    ``full_spec`` the table's; else None and ``spec``).
+
+    Raises
+    ------
+    InputError
+        A bad scenario, ``[plan]`` table, identified file or observation file; both
+        ``--identified`` and ``--from``; a mesh over the memory budget.
+    """
     from ..config import load_scenario
-    from ..config.plan import parse_plan
     from ..config.budget import check_memory
+    from ..config.plan import parse_plan
     from ..errors import InputError
-    from ..outputs import atomic_write_json
-    from ..outputs.recording_process import RecordingProcess
-    from ..outputs.transaction import output_transaction
-    from ..planning import plan, plan_document
-    from ..planning.document import recording_job
 
     scenario, origin = load_scenario(args.scenario), None
     table = scenario.extra.get("plan")
@@ -143,17 +149,60 @@ def cmd_plan(args) -> int:
                              "give one of them")
         distribution = read_identified(args.identified)
         scenario = distribution.scenario(scenario, distribution.mean)  # the nominal plan is for the estimate
-    spec = parse_plan(scenario, world_origin=origin)
+    spec = full_spec = parse_plan(scenario, world_origin=origin)
     start = None
     if args.from_observations:
         from ..config.observations import read_observations
         from ..planning.replan import measured_start, remaining_spec
 
         start = measured_start(scenario, spec, read_observations(args.from_observations))
-        full_spec, spec = spec, remaining_spec(spec, start)
+        spec = remaining_spec(spec, start)
     check_memory(scenario.elements, scenario.quadrature, override=args.no_memory_check)
     check_memory(spec.planning_elements, spec.planning_quadrature, override=args.no_memory_check,
                  what="plan.planning_elements")
+    return scenario, spec, distribution, start, full_spec
+
+
+def _planned(args, scenario, spec, distribution, start, log):
+    """``(result, robust)``: the plan (the robust one with ``distribution``) and the
+    :class:`~pushplan.planning.robust.RobustResult` (None without ``--identified``)."""
+    from ..planning import plan
+
+    result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
+                  refinement=args.refinement)
+    if distribution is None:
+        return result, None
+    from ..planning.robust import plan_robust
+
+    robust = plan_robust(scenario, distribution, spec, result, log=log)
+    return robust.result, robust
+
+
+def _document(args, scenario, spec, result, robust, start, full_spec) -> dict:
+    """The ``plan.json`` content: the plan, its robust check, world poses, the measured start, the GCI."""
+    from ..planning import plan_document
+
+    doc = plan_document(result)
+    if robust is not None:
+        from ..planning.robust import robust_document
+
+        doc["robust"] = robust_document(robust, spec)
+    if spec.world_origin is not None:
+        doc["world"] = _world_poses(doc, spec)
+    if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
+        doc["from"] = {"observations": args.from_observations, **start.to_dict(), "full_plan": full_spec.to_dict()}
+    if args.verification_error:
+        doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
+    return doc
+
+
+def cmd_plan(args) -> int:
+    from ..outputs import atomic_write_json
+    from ..outputs.recording_process import RecordingProcess
+    from ..outputs.transaction import output_transaction
+    from ..planning.document import recording_job
+
+    scenario, spec, distribution, start, full_spec = _inputs(args)
     tx = output_transaction(args.out, ("plan.json", "recording.rrd"))
 
     def log(text):
@@ -163,24 +212,8 @@ def cmd_plan(args) -> int:
     # the recording's writer imports rerun on the other core while this process plans
     writer = RecordingProcess() if not args.no_recording else nullcontext()
     with writer, tx:
-        result = plan(scenario, spec, log=log, after=start.executed if start else (), baseline=not args.no_baseline,
-                      refinement=args.refinement)
-        robust = None
-        if distribution is not None:
-            from ..planning.robust import plan_robust, robust_document
-
-            robust = plan_robust(scenario, distribution, spec, result, log=log)
-            result = robust.result
-        doc = plan_document(result)
-        if robust is not None:
-            doc["robust"] = robust_document(robust, spec)
-        if spec.world_origin is not None:
-            doc["world"] = _world_poses(doc, spec)
-        if start is not None:  # poses are relative to the observed pose; plan is the remaining steps' spec
-            doc["from"] = {"observations": args.from_observations, **start.to_dict(),
-                           "full_plan": full_spec.to_dict()}
-        if args.verification_error:
-            doc["verification_error"] = _verification_error(scenario, doc, args.verification_ratio)
+        result, robust = _planned(args, scenario, spec, distribution, start, log)
+        doc = _document(args, scenario, spec, result, robust, start, full_spec)
         atomic_write_json(tx.path / "plan.json", doc)
         wrote = [tx.out / "plan.json"]
         if not args.no_recording:

@@ -245,6 +245,65 @@ def _planning_elements(t: Table) -> tuple:
     return elements
 
 
+def _max_dtheta(t: Table, yaw_targeted: bool) -> float:
+    """``[plan] max_dtheta_deg`` in radians: required with ``yaw_deg``, refused without (0)."""
+    if yaw_targeted:
+        if "max_dtheta_deg" not in t:
+            raise InputError("missing key plan.max_dtheta_deg (needed with plan.yaw_deg)")
+        return math.radians(t.number("max_dtheta_deg", positive=True, hi=180.0))
+    if "max_dtheta_deg" in t:
+        raise InputError("plan.max_dtheta_deg is only used with plan.yaw_deg (rotation commands)")
+    return 0.0
+
+
+def _frame(t: Table, target: tuple, yaw_targeted: bool, world_origin) -> tuple[tuple, tuple | None, tuple | None]:
+    """``(block-frame target, world_target, world_origin)`` of ``[plan] frame`` (the
+    world ones None for ``frame = "block"``)."""
+    if t.choice("frame", FRAMES, "block") != "world":
+        return target, None, None
+    if world_origin is None:
+        raise InputError("plan.frame = 'world' needs the block's world pose: a [mujoco] table naming the "
+                         "MJCF scene (pushplan plan reads it)")
+    world_origin = tuple(float(v) for v in world_origin)
+    x, y, block_yaw = world_to_block(target, world_origin)
+    return (x, y, block_yaw if yaw_targeted else 0.0), target, world_origin
+
+
+def _tolerance(t: Table, travel: float) -> float:
+    """``[plan] tolerance`` (m); default :data:`DEFAULT_TOLERANCE_REL` of the travel."""
+    if "tolerance" in t:
+        return t.number("tolerance", minimum=MIN_TOLERANCE_LENGTH, maximum=MAX_LENGTH)
+    if travel > 0:
+        return DEFAULT_TOLERANCE_REL * travel
+    raise InputError("plan.tolerance is required when the target position is the start (x = y = 0)")
+
+
+def _target_state(t: Table, scenario: Scenario) -> str:
+    """``[plan] target_state``: ``"rest"`` by default with a ``[release]`` table (and needs one)."""
+    target_state = t.choice("target_state", TARGET_STATES, "rest" if scenario.release else "loaded")
+    if target_state == "rest" and scenario.release is None:
+        raise InputError('plan.target_state = "rest" needs a [release] table (how the gripper lets go)')
+    return target_state
+
+
+def _target(t: Table) -> tuple[tuple[float, float, float], bool]:
+    """``[plan] x, y, yaw_deg``: the target ``(x, y, yaw)`` (m, m, rad) in the table's frame
+    and whether the yaw is targeted."""
+    x, y = t.number("x", minimum=-MAX_LENGTH, maximum=MAX_LENGTH), t.number("y", minimum=-MAX_LENGTH, maximum=MAX_LENGTH)
+    yaw_targeted = "yaw_deg" in t
+    yaw = math.radians(t.number("yaw_deg", lo=-180.0, hi=180.0)) if yaw_targeted else 0.0
+    return (x, y, yaw), yaw_targeted
+
+
+def _max_step(t: Table) -> float:
+    """``[plan] max_step`` (m), at least :data:`~pushplan.limits.MIN_PLAN_STEP`."""
+    max_step = t.number("max_step", positive=True, maximum=MAX_LENGTH)
+    if max_step < MIN_PLAN_STEP:
+        raise InputError(f"plan.max_step must be >= {MIN_PLAN_STEP} m (a smaller push is below the solver's "
+                         f"tolerance), got {t.data['max_step']!r}")
+    return max_step
+
+
 def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     """Validate the scenario's ``[plan]`` table and its press.
 
@@ -268,45 +327,15 @@ def parse_plan(scenario: Scenario, world_origin=None) -> PlanSpec:
     if scenario.mu_x <= 0 or scenario.mu_y <= 0:
         raise InputError(f"planning needs friction in both directions, got mu_x = {scenario.mu_x}, "
                          f"mu_y = {scenario.mu_y}")
-    x, y = t.number("x", minimum=-MAX_LENGTH, maximum=MAX_LENGTH), t.number("y", minimum=-MAX_LENGTH, maximum=MAX_LENGTH)
-    yaw_targeted = "yaw_deg" in t
-    yaw = math.radians(t.number("yaw_deg", lo=-180.0, hi=180.0)) if yaw_targeted else 0.0
+    target, yaw_targeted = _target(t)
     steps = t.integer("steps", minimum=1, maximum=MAX_PLAN_STEPS)
-    max_step = t.number("max_step", positive=True, maximum=MAX_LENGTH)
-    if max_step < MIN_PLAN_STEP:
-        raise InputError(f"plan.max_step must be >= {MIN_PLAN_STEP} m (a smaller push is below the solver's "
-                         f"tolerance), got {t.data['max_step']!r}")
-    if yaw_targeted:
-        if "max_dtheta_deg" not in t:
-            raise InputError("missing key plan.max_dtheta_deg (needed with plan.yaw_deg)")
-        max_dtheta = math.radians(t.number("max_dtheta_deg", positive=True, hi=180.0))
-    elif "max_dtheta_deg" in t:
-        raise InputError("plan.max_dtheta_deg is only used with plan.yaw_deg (rotation commands)")
-    else:
-        max_dtheta = 0.0
-    world_target = None
-    if t.choice("frame", FRAMES, "block") == "world":
-        if world_origin is None:
-            raise InputError("plan.frame = 'world' needs the block's world pose: a [mujoco] table naming the "
-                             "MJCF scene (pushplan plan reads it)")
-        world_origin = tuple(float(v) for v in world_origin)
-        world_target = (x, y, yaw)
-        x, y, block_yaw = world_to_block(world_target, world_origin)
-        yaw = block_yaw if yaw_targeted else 0.0
-    else:
-        world_origin = None
-    travel = math.hypot(x, y)
-    if "tolerance" in t:
-        tolerance = t.number("tolerance", minimum=MIN_TOLERANCE_LENGTH, maximum=MAX_LENGTH)
-    elif travel > 0:
-        tolerance = DEFAULT_TOLERANCE_REL * travel
-    else:
-        raise InputError("plan.tolerance is required when the target position is the start (x = y = 0)")
-    target_state = t.choice("target_state", TARGET_STATES, "rest" if scenario.release else "loaded")
-    if target_state == "rest" and scenario.release is None:
-        raise InputError('plan.target_state = "rest" needs a [release] table (how the gripper lets go)')
+    max_step = _max_step(t)
+    max_dtheta = _max_dtheta(t, yaw_targeted)
+    target, world_target, world_origin = _frame(t, target, yaw_targeted, world_origin)
+    tolerance = _tolerance(t, math.hypot(target[0], target[1]))
+    target_state = _target_state(t, scenario)
     return PlanSpec(
-        target=(x, y, yaw), yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
+        target=target, yaw_targeted=yaw_targeted, steps=steps, max_step=max_step, max_dtheta=max_dtheta,
         tolerance=tolerance,
         yaw_tolerance=math.radians(t.number("yaw_tolerance_deg", DEFAULT_YAW_TOLERANCE_DEG, positive=True, hi=180.0)),
         effort_weight=t.number("effort_weight", DEFAULT_EFFORT_WEIGHT, nonneg=True, maximum=MAX_EFFORT_WEIGHT),

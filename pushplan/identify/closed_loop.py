@@ -26,20 +26,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fe_contact import Command, Model, State, StepReport
+from fe_contact import Model, State, StepReport
 
-from ..config.commands import command_to_dict, planar_commands
+from ..config.commands import planar_commands
 from ..config.plan import PlanSpec, press_commands
 from ..config.scenario import Scenario
 from ..errors import InputError, SolverFailure
 from ..planning import plan
 from ..planning.planner import PlanSession
-from ..planning.replan import replan
+from ..planning.replan import remaining_spec, replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
-from .episodes import Episode, episode_spec, pose_json, regrasp, relative_summary, rest_shift
-from .fit import identify
+from .episodes import Episode, episode_spec, regrasp, relative_summary, rest_shift
+from .fit import Identification, identify
+from .loop_result import ClosedLoopResult, Iteration, RobustReplan, TruthRuns, error_json, friction_of
 from .noise import NoiseModel
 
 LOOP_FIT = ("mu_x", "mu_y", "angle_deg", "young")
@@ -128,46 +129,6 @@ class Truth:
         return np.array([s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw])
 
 
-@dataclass(frozen=True)
-class Iteration:
-    """One push of the closed loop: the command executed, the pose observed after it,
-    the friction the plan behind it used and, with identification, the estimates."""
-
-    step: int
-    command: Command
-    observed: np.ndarray
-    friction: dict
-    plan_status: str
-    plan_message: str  # why the plan behind the push has its status (the bound or tolerance it misses)
-    plan_fe_rollouts: int
-    identified: dict | None
-    wall_time: float
-    planned: np.ndarray  # (n, 3) lower-face path of the plan behind the push, from rest (m, rad)
-
-    def to_dict(self) -> dict:
-        x, y, yaw = (float(v) for v in self.observed)
-        return {"step": self.step, "command": command_to_dict(self.command), "observed_pose": [x, y, math.degrees(yaw)],
-                "planned_path": [_pose_json(p) for p in self.planned],
-                "planned_with": self.friction, "plan_status": self.plan_status,
-                "plan_message": self.plan_message, "plan_fe_rollouts": self.plan_fe_rollouts, "identified": self.identified, "wall_time_s": self.wall_time}
-
-
-def _friction(sc: Scenario) -> dict:
-    return {"mu_x": sc.mu_x, "mu_y": sc.mu_y, "angle_deg": sc.angle_deg}
-
-
-def _error(pose, spec: PlanSpec) -> dict:
-    pos, yaw = pose_error(pose, spec)
-    return {"position": pos, "yaw_deg": math.degrees(yaw) if spec.yaw_targeted else None,
-            "within_tolerance": within_tolerance(pose, spec)}
-
-
-def _identified(result) -> dict:
-    return {k: {"estimate": float(v), "sigma": float(s) if math.isfinite(s) else None, "identifiable": f}
-            for k, v, s, f in zip(result.names, result.estimate, result.sigma, result.identifiable, strict=True)} | {
-        "fe_rollouts": result.fe_rollouts}
-
-
 def _new_truth(truth_scenario: Scenario, press) -> Truth:
     model = truth_scenario.model()
     t = Truth(model, None)
@@ -210,28 +171,94 @@ def _shifted(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
                                yaw_tolerance=REPLAN_TOLERANCE * spec.yaw_tolerance)
 
 
-def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, shift, session):
+@dataclass(frozen=True)
+class LoopOptions:
+    """How the loop re-plans: ``identify`` re-identifies after each push (with ``noise``),
+    ``robust`` (with ``identify``) re-plans robustly over the re-identified distribution,
+    ``warm`` re-plans without identification in one session; ``log`` gets progress lines."""
+
+    identify: bool = False
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    log: object = None
+    warm: bool = True
+    robust: bool = False
+
+    def say(self, text: str) -> None:
+        if self.log is not None:
+            self.log(text)
+
+
+def _robust(model_sc: Scenario, est: Identification, spec: PlanSpec, replan_spec: PlanSpec, nominal, start,
+            opts: LoopOptions):
+    """The re-plan ``nominal`` refined robustly over ``est``'s distribution (undetermined
+    parameters held at the estimate), scored against the loop's own tolerances (not the
+    re-plan's :data:`REPLAN_TOLERANCE`), without a Monte Carlo check; returns the result
+    and its :class:`RobustReplan` (None when no parameter is determined: the nominal stands)."""
+    from ..planning.robust import plan_robust
+
+    distribution, held = loop_distribution(est)
+    if distribution is None:
+        return nominal, None
+    robust_spec = dataclasses.replace(remaining_spec(replan_spec, start), tolerance=spec.tolerance,
+                                      yaw_tolerance=spec.yaw_tolerance,
+                                      robust=dataclasses.replace(spec.robust, monte_carlo=0))
+    r = plan_robust(model_sc, distribution, robust_spec, nominal, after=start.executed)
+    ev = r.evaluations[r.best]
+    opts.say(f"  robust re-plan: predicted probability {ev.probability:.4f} (nominal "
+             f"{r.evaluations[0].probability:.4f}, level {spec.robust.level:g})")
+    return r.result, RobustReplan(spec.robust.level, r.reached, ev.probability, r.evaluations[0].probability,
+                                  distribution.names, held, len(r.evaluations), r.rollouts["sigma_point_rollouts"],
+                                  sum(r.wall_time.values()))
+
+
+def loop_distribution(est: Identification):
+    """``(Distribution, held)``: the Gaussian of ``est``'s identifiable parameters (covariance
+    ``corr * sigma sigma^T``), the others (undetermined: no finite variance) held at the
+    estimate and named in ``held``; ``(None, held)`` when none is identifiable."""
+    from ..planning.distribution import Distribution
+
+    keep = [j for j, (s, ok) in enumerate(zip(est.sigma, est.identifiable, strict=True)) if ok and math.isfinite(s)]
+    held = tuple(k for j, k in enumerate(est.names) if j not in keep)
+    if not keep:
+        return None, held
+    sd = np.asarray(est.sigma, float)[keep]
+    corr = np.nan_to_num(np.asarray(est.correlation, float)[np.ix_(keep, keep)])
+    return Distribution(tuple(est.names[j] for j in keep), np.asarray(est.estimate, float)[keep],
+                        corr * np.outer(sd, sd)), held
+
+
+def _replan(model_sc, spec, truth, k, opts: LoopOptions, shift, session):
+    """The re-plan before push ``k + 1`` (``k >= 1``): the model (re-identified with
+    ``opts.identify``), the re-plan, the identification and the robust re-plan's record."""
+    obs = observations_from_steps(truth.steps)
+    est = robust = None
+    if opts.identify:
+        est = identify(model_sc, obs, opts.noise, LOOP_FIT, model_error=False)
+        model_sc = est.scenario(model_sc)
+        opts.say(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}"
+                                                        for n, v in zip(est.names, est.estimate, strict=True)))
+    # the loop never reads the naive rollout: no baseline
+    # warm in the session; cold with identification (another model each push)
+    replan_spec = _shifted(spec, shift)
+    result, start = replan(model_sc, replan_spec, obs, baseline=False, session=session)
+    if opts.robust and est is not None:
+        result, robust = _robust(model_sc, est, spec, replan_spec, result, start, opts)
+    return model_sc, result, est, robust
+
+
+def _step(model_sc, spec, truth, k, first, opts: LoopOptions, bias, shift, session):
     """Plan (or re-plan) with the current model and execute the next push on the truth
     (re-plans in the warm ``session`` unless identification changes the model)."""
-    identified = None
+    est = robust = None
     if k == 0:
         result = first
     else:
-        obs = observations_from_steps(truth.steps)
-        if use_identify:
-            est = identify(model_sc, obs, noise, LOOP_FIT, model_error=False)
-            identified = _identified(est)
-            model_sc = est.scenario(model_sc)
-            if log:
-                log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate, strict=True)))
-        # the loop never reads the naive rollout: no baseline
-        # warm in the session; cold with identification (another model each push)
-        result, _ = replan(model_sc, _shifted(spec, shift), obs, baseline=False, session=session)
+        model_sc, result, est, robust = _replan(model_sc, spec, truth, k, opts, shift, session)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth
     truth.execute([command])
-    return model_sc, result, command, identified, planned
+    return model_sc, result, command, (est, robust), planned
 
 
 def _final(truth: Truth, spec: PlanSpec, release) -> np.ndarray:
@@ -240,11 +267,11 @@ def _final(truth: Truth, spec: PlanSpec, release) -> np.ndarray:
     return truth.rest_pose(release) if spec.target_state == "rest" else truth.pose
 
 
-def _pushes(model_sc, spec, truth, first, use_identify, noise, log, warm, label=""):
+def _pushes(model_sc, spec, truth, first, opts: LoopOptions, label=""):
     """Execute ``first``'s pushes one at a time on ``truth``, re-planning after each
     (:func:`modifier`); returns the model planned with last and the iterations."""
     # the warm planner of the re-plans, on the planning mesh (the bias takes up its error too)
-    session = PlanSession(model_sc, spec, verify=False) if warm and not use_identify else None
+    session = PlanSession(model_sc, spec, verify=False) if opts.warm and not opts.identify else None
     if session is not None:
         session.follow(first)
     iterations, current, bias, drift = [], model_sc, np.zeros(3), np.zeros(3)
@@ -252,22 +279,20 @@ def _pushes(model_sc, spec, truth, first, use_identify, noise, log, warm, label=
     for k in range(spec.steps):
         t0 = time.perf_counter()
         try:
-            current, result, command, identified, planned = _step(current, spec, truth, k, first, use_identify,
-                                                                  noise, log, bias,
-                                                                  modifier(spec, bias, drift, springback),
-                                                                  session)
+            current, result, command, (est, robust), planned = _step(
+                current, spec, truth, k, first, opts, bias, modifier(spec, bias, drift, springback), session)
         except InputError as e:
             raise LoopError(f"closed loop {label}step {k + 1}: {e}") from e
         bias = truth.pose - planned[1] + bias  # planned[1] holds the old bias
         # the model's loaded discrepancy from the truth; an identified model is fitted to the
         # observed poses, so its own is taken as none
-        drift = np.zeros(3) if use_identify else drift + bias
+        drift = np.zeros(3) if opts.identify else drift + bias
         springback = result.springback.fractions
-        iterations.append(Iteration(k + 1, command, truth.pose, _friction(current), result.status,
-                                    result.message, sum(result.rollouts.values()), identified, time.perf_counter() - t0, planned))
-        if log:
-            log(f"{label}step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
-                f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
+        iterations.append(Iteration(k + 1, command, truth.pose, friction_of(current), result.status,
+                                    result.message, sum(result.rollouts.values()), est, time.perf_counter() - t0,
+                                    planned, robust))
+        opts.say(f"{label}step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
+                 f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
     return current, iterations
 
 
@@ -277,38 +302,37 @@ def _world(iterations, origin) -> tuple:
                  for it in iterations)
 
 
-def _episodes(current, spec, truth, first, iterations, release, press, options, t_start):
+def _episodes(current, spec, truth, iterations, release, press, opts: LoopOptions, t_start):
     """The first episode's release and, while its rest pose is outside the tolerance,
     further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most; returns the
     model planned with last, the episodes and the last episode's truth."""
-    use_identify, noise, log, warm = options
     truth.let_go(release)
     episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
-                        _error(truth.rest, spec), 0, time.perf_counter() - t_start)]
+                        error_json(truth.rest, spec), 0, time.perf_counter() - t_start)]
     observed, aimed = [], []
     while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
         t0, index = time.perf_counter(), len(episodes) + 1
         origin = episodes[-1].rest
         spec_e = episode_spec(spec, origin, rest_shift(observed, aimed))
-        if log:
-            log(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
+        opts.say(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
         truth = truth.regrasped(press)
         first_e = plan(current, spec_e, baseline=False)
-        current, its = _pushes(current, spec_e, truth, first_e, use_identify, noise, log, warm, f"episode {index} ")
+        current, its = _pushes(current, spec_e, truth, first_e, opts, f"episode {index} ")
         rest = truth.let_go(release)
         observed.append(rest)
         aimed.append(np.array(spec_e.target))
         world = origin + rest
         episodes.append(Episode(index, origin, np.array(spec_e.target), _world(its, origin), origin + truth.pose,
-                                world, _error(world, spec), 1 if truth.model.pad is None else 0,
+                                world, error_json(world, spec), 1 if truth.model.pad is None else 0,
                                 time.perf_counter() - t0))
     return current, episodes, truth
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
-                noise: NoiseModel | None = None, log=None, warm: bool = True) -> dict:
-    """Run the closed loop and the open-loop baseline; returns the ``closed_loop.json`` content
-    and keeps the truth runs for the recording under ``"_truth"`` (removed before writing).
+                noise: NoiseModel | None = None, log=None, warm: bool = True,
+                robust: bool = False) -> ClosedLoopResult:
+    """Run the closed loop and the open-loop baseline (its ``to_dict()`` is the
+    ``closed_loop.json`` content; ``runs`` the truth runs for the recording).
 
     After each push the re-plan aims at ``target - shift`` (:func:`modifier`): for a loaded
     target ``bias``, the truth's pose less the pose the plan expected after that push; for a
@@ -318,9 +342,11 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     that is outside the tolerance, the gripper grasps the block again where it rests and
     pushes the correction, ``spec.episodes`` grasp-push-release cycles at most (:mod:`.episodes`).
     ``warm``: re-plan in one :class:`~pushplan.planning.planner.PlanSession` on the planning
-    mesh (without identification); False re-plans cold, each from the press on both meshes."""
+    mesh (without identification); False re-plans cold, each from the press on both meshes.
+    ``robust`` (with ``use_identify``): each re-plan is refined to ``spec.robust.level`` over
+    the re-identified estimate and covariance (:func:`_robust`)."""
     t_start = time.perf_counter()
-    noise = noise or NoiseModel()
+    opts = LoopOptions(use_identify, noise or NoiseModel(), log, warm, robust and use_identify)
     press = press_commands(model_sc)
     release = truth_sc.release or model_sc.release
     first = plan(model_sc, spec, baseline=False)
@@ -328,33 +354,19 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     open_truth.execute(planar_commands(first.commands))
     open_final = _final(open_truth, spec, release)
     truth = first_truth = _new_truth(truth_sc, press)
-    current, iterations = _pushes(model_sc, spec, truth, first, use_identify, noise, log, warm)
+    current, iterations = _pushes(model_sc, spec, truth, first, opts)
     episodes = []
     if spec.target_state == "rest":
-        current, episodes, truth = _episodes(current, spec, truth, first, iterations, release, press,
-                                             (use_identify, noise, log, warm), t_start)
+        current, episodes, truth = _episodes(current, spec, truth, iterations, release, press, opts, t_start)
         iterations = [it for e in episodes for it in e.iterations]
         final_pose = episodes[-1].rest
     else:
         final_pose = truth.pose
-    final = (_identified(identify(current, observations_from_steps(truth.steps), noise, LOOP_FIT, model_error=False))
+    final = (identify(current, observations_from_steps(truth.steps), opts.noise, LOOP_FIT, model_error=False)
              if use_identify else None)
-    return {
-        "scenario": model_sc.name, "truth": {"name": truth_sc.name, **_friction(truth_sc)},
-        "model": _friction(model_sc), "plan": spec.to_dict(), "identify": use_identify,
-        "scored_on": "rest pose after the truth's release" if spec.target_state == "rest" else "loaded pose",
-        "open_loop": {"commands": [command_to_dict(c) for c in planar_commands(first.commands)],
-                      "final_pose": _pose_json(open_final), "final_error": _error(open_final, spec)},
-        "closed_loop": {"commands": [command_to_dict(it.command) for it in iterations],
-                        "final_pose": _pose_json(final_pose), "final_error": _error(final_pose, spec),
-                        "episodes": len(episodes) or None},
-        "final_estimates": final,
-        "iterations": [it.to_dict() for it in iterations],
-        "episodes": [e.to_dict() for e in episodes],
-        "wall_time_s": time.perf_counter() - t_start,
-        "_truth": (first_truth, open_truth, [it.planned for it in episodes[0].iterations] if episodes
-                   else [it.planned for it in iterations]),
-    }
-
-
-_pose_json = pose_json
+    planned = tuple(it.planned for it in (episodes[0].iterations if episodes else iterations))
+    return ClosedLoopResult(
+        scenario=model_sc, truth=truth_sc, spec=spec, identify=use_identify, robust=opts.robust,
+        open_commands=tuple(planar_commands(first.commands)), open_final=open_final, final_pose=final_pose,
+        iterations=tuple(iterations), episodes=tuple(episodes), final_estimates=final,
+        wall_time=time.perf_counter() - t_start, runs=TruthRuns(first_truth, open_truth, planned))

@@ -5,8 +5,11 @@ NLP on it, and the correction loop that verifies the plan in the FE model.
 ``nlp``            the planning NLP on the reduced model (CasADi ``Opti`` + ipopt)
 ``rollouts``       FE rollouts from the pressed state through :func:`pushplan.run.drive`
 ``target``         the naive baseline, pose errors, tolerance test
-``planner``        :func:`plan`, the correction loop; :class:`PlanSession`, the warm planner
-                   of the closed loop (re-plans without rebuilding anything)
+``planner``        :class:`PlanSession`, the planner's session (the warm planner of the closed
+                   loop: re-plans without rebuilding anything); :func:`plan`, one planned once
+``calibration``    the reduced model calibrated on FE rollouts; whether it still holds
+``correction``     the FE correction loop (modifier adaptation or exact-gradient steps)
+``status``         a plan's status and its message
 ``refine``         the Gauss-Newton step with the exact FE Jacobian (``refinement``)
 ``result``         :class:`PlanResult`, typed
 ``document``       ``plan.json`` and ``recording.rrd``

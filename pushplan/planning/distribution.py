@@ -36,6 +36,8 @@ POSITIVE = ("mu_x", "mu_y", "young")
 QMC_POINTS = 2**14
 """Scrambled Sobol points of :func:`success_probability` (its error ~ 1e-3, stated in docs/planning.md)."""
 QMC_SEED = 12345
+FACTOR_RTOL = 1e-9
+"""How closely :meth:`Distribution.factor`'s ``L L^T`` must give ``C``, relative to each pair's standard deviations."""
 MAX_REDRAWS = 10
 """Draws per truth before :meth:`Distribution.sample` gives up on a distribution mostly at mu <= 0."""
 
@@ -62,9 +64,21 @@ class Distribution:
         return not np.any(self.covariance)
 
     def factor(self) -> np.ndarray:
-        """``L`` (p, p) with ``L L^T = C`` (symmetric eigen-decomposition: C may be singular)."""
-        lam, V = np.linalg.eigh(0.5 * (self.covariance + self.covariance.T))
-        return V * np.sqrt(np.maximum(lam, 0.0))
+        """``L`` (p, p) with ``L L^T = C``: ``V Lambda^(1/2)`` of the symmetric
+        eigen-decomposition of ``C`` (C may be singular), the covariance's principal axes.
+        Where that misses ``C`` by more than :data:`FACTOR_RTOL` of a pair's standard
+        deviations (eigh's rounding is relative to the largest eigenvalue: a modulus in Pa
+        beside a friction coefficient), ``D V' Lambda'^(1/2)`` of the correlation
+        ``D^-1 C D^-1`` instead, ``D`` the standard deviations."""
+        C = 0.5 * (self.covariance + self.covariance.T)
+        lam, V = np.linalg.eigh(C)
+        L = V * np.sqrt(np.maximum(lam, 0.0))
+        d = np.sqrt(np.maximum(np.diag(C), 0.0))
+        if np.all(np.abs(L @ L.T - C) <= FACTOR_RTOL * np.outer(d, d)):
+            return L
+        inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+        lam, V = np.linalg.eigh(C * np.outer(inv, inv))
+        return d[:, None] * V * np.sqrt(np.maximum(lam, 0.0))
 
     def sigma_points(self) -> tuple[np.ndarray, np.ndarray]:
         """``(points (S, p), weights (S,))`` of the module docstring; the mean alone (S = 1)

@@ -57,8 +57,13 @@ from .result import PlanResult
 from .rollouts import FeRollouts, Rollout
 from .target import pose_error, within_tolerance
 
-SLIDE_STEPS = 2
-"""Commands of :func:`slide_start`'s final slide: a lag turned far needs more than one step's slip."""
+SLIDE_STEPS = None
+"""Commands of :func:`slide_start`'s final slide at most (None: as many as the other commands'
+bounds allow, up to K - 1).  A lag built along a badly known axis relaxes slowly while the
+block slides along the well-known one (the flow rule turns the slip only by ``(mu_y / mu_x)^2``
+of the force's turn), so the longest slide the bounds allow is the start: on rotated axes
+(30 degrees, mu_x = 0.4 +- 0.015, mu_y = 0.15 +- 0.003, 10 steps) a cap of 2 left the
+refinement at 0.66 after 12 evaluations, the longest slide reached 0.91 (benchmarks/robust_rotated.py)."""
 DIRECTIONS = 72
 """Slip directions (every 5 degrees) :func:`quiet_direction` compares."""
 LAMBDA0 = 1e-2
@@ -131,14 +136,16 @@ class RobustResult:
 
 
 class SigmaRollouts:
-    """One pressed FE model on the verification mesh per sigma point."""
+    """One pressed FE model on the verification mesh per sigma point (``after``: the pushes
+    executed after the press, applied once to each; poses are then relative to where they
+    leave it, as :class:`~.rollouts.FeRollouts` has them)."""
 
-    def __init__(self, scenario: Scenario, distribution: Distribution, spec: PlanSpec):
+    def __init__(self, scenario: Scenario, distribution: Distribution, spec: PlanSpec, after=()):
         self.spec = spec
         self.points, self.weights = distribution.sigma_points()
         press = press_commands(scenario)
         self.fe = [FeRollouts(distribution.scenario(scenario, theta).model(), press, f"sigma point {i}",
-                              release=scenario.release) for i, theta in enumerate(self.points)]
+                              release=scenario.release, after=tuple(after)) for i, theta in enumerate(self.points)]
         # exact command Jacobians of the loaded final pose with a bonded pad
         self.exact = spec.target_state == "loaded" and scenario.pad is None
 
@@ -246,10 +253,11 @@ def quiet_direction(params: PushParameters, distribution: Distribution, toward) 
 
 
 def slide_start(nominal: PlanResult, distribution: Distribution, spec: PlanSpec) -> np.ndarray | None:
-    """A second start of the refinement (step 3): commands whose last (up to :data:`SLIDE_STEPS`,
-    as many as leave the others within the bounds) slide ``max_step`` each along :func:`quiet_direction`, the others straight and equal towards the target plus the
-    lag that slide leaves (less its spring-back for a rest target), within the step bounds;
-    None with a yaw target or a single step."""
+    """A second start of the refinement (step 3): commands whose last ones (as many as leave the
+    others within the bounds, at most :data:`SLIDE_STEPS`) slide ``max_step`` each along
+    :func:`quiet_direction`, the others straight and equal towards the target plus the lag that
+    slide leaves (less its spring-back for a rest target), within the step bounds; None with a
+    yaw target or a single step."""
     K = spec.steps
     target = np.asarray(spec.target[:2], float)
     if spec.yaw_targeted or K < 2 or not np.any(target):
@@ -259,7 +267,7 @@ def slide_start(nominal: PlanResult, distribution: Distribution, spec: PlanSpec)
     if spec.target_state == "rest":
         lag = (1.0 - nominal.springback.position) * lag
     last = spec.max_step * d
-    for n in range(min(SLIDE_STEPS, K - 1), 0, -1):  # the longest slide the others' bounds allow
+    for n in range(K - 1 if SLIDE_STEPS is None else min(SLIDE_STEPS, K - 1), 0, -1):  # the longest that fits
         step = (target + lag - n * last) / (K - n)
         if np.hypot(*step) <= spec.max_step:
             break
@@ -309,12 +317,13 @@ def refine(sigma: SigmaRollouts, commands: np.ndarray, spec: PlanSpec, log=None,
 
 
 def monte_carlo(scenario: Scenario, distribution: Distribution, spec: PlanSpec, plans: dict,
-                truths: np.ndarray) -> tuple[dict, int]:
-    """Step 5: ``{name: MonteCarlo}`` of the commands ``plans[name]`` over ``truths``, and the FE rollouts run."""
+                truths: np.ndarray, after=()) -> tuple[dict, int]:
+    """Step 5: ``{name: MonteCarlo}`` of the commands ``plans[name]`` over ``truths`` (each
+    from the state ``after`` leaves), and the FE rollouts run."""
     press, finals, n = press_commands(scenario), {k: [] for k in plans}, 0
     for i, theta in enumerate(truths):
         fe = FeRollouts(distribution.scenario(scenario, theta).model(), press, f"truth {i}",
-                        release=scenario.release)
+                        release=scenario.release, after=tuple(after))
         for name, u in plans.items():
             finals[name].append(fe.rollout(u).final(spec.target_state))
         n += fe.count
@@ -323,9 +332,12 @@ def monte_carlo(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
 
 
 def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, nominal: PlanResult,
-                log=None) -> RobustResult:
+                log=None, after=()) -> RobustResult:
     """The robust plan of the module docstring from the ``nominal`` plan of ``scenario``
-    (whose parameters are the distribution's mean) and its Monte Carlo check.
+    (whose parameters are the distribution's mean) and its Monte Carlo check.  ``after``:
+    the pushes executed after the press (a re-plan, :mod:`.replan`; ``spec`` and
+    ``nominal`` relative to the pose they leave); the sigma points and the truths start
+    from the state they leave in each.
 
     Raises
     ------
@@ -335,7 +347,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
         The distribution's draws are mostly unphysical (:meth:`Distribution.sample`).
     """
     t0 = time.perf_counter()
-    sigma = SigmaRollouts(scenario, distribution, spec)
+    sigma = SigmaRollouts(scenario, distribution, spec, after)
     evals = refine(sigma, nominal.commands, spec, log, alternative=slide_start(nominal, distribution, spec))
     t1 = time.perf_counter()
     best = max(range(len(evals)), key=lambda i: (evals[i].probability, -evals[i].objective))
@@ -343,7 +355,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
     reached = ev.probability >= level
     truths, redrawn = distribution.sample(spec.robust.monte_carlo, np.random.default_rng(spec.robust.seed))
     checks, mc_rollouts = monte_carlo(scenario, distribution, spec, {"robust": ev.commands,
-                                                                     "nominal": nominal.commands}, truths)
+                                                                     "nominal": nominal.commands}, truths, after)
     message = (f"predicted probability {ev.probability:.4g} of the final pose within tolerance over the "
                f"identified distribution ({len(sigma.fe)} sigma points) "
                + (f">= level {level:g}" if reached else
