@@ -110,9 +110,15 @@ class LinearisedReaction:
         c = self.coupler
         if d is not c.mj_data or self.centre is None or c._gbody == 0:
             return
-        centre, _ = c.drive_pose()
-        force = self.force + self.stiffness @ (centre - self.centre)
-        mujoco_module().mj_applyFT(m, d, -force, -self.moment, d.xipos[c._gbody].copy(), c._gbody, d.qfrc_passive)
+        force, moment = self.wrench()
+        mujoco_module().mj_applyFT(m, d, -force, -moment, d.xipos[c._gbody].copy(), c._gbody, d.qfrc_passive)
+
+    def wrench(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(F_g + K (c - c_0), M)`` of eq. (2) at the gripper's pose now (world, N, N m)."""
+        if self.centre is None:
+            return self.force, self.moment
+        centre, _ = self.coupler.drive_pose()
+        return self.force + self.stiffness @ (centre - self.centre), self.moment
 
     def close(self) -> None:
         mujoco_module().set_mjcb_passive(self._previous)
