@@ -49,7 +49,7 @@ def _scene_xml(mocap: bool) -> str:
     return text
 
 
-def _run(tmp_path: Path, arm: str | None, ki: float = KI):
+def _run(tmp_path: Path, arm: str | None, ki: float = KI, elements=(2, 2, 1)):
     """Gripper forces (world, N) per period, final block (position (3,), yaw), the hand's
     final offset from its command (m) and MuJoCo's model; ``arm`` None drives a mocap hand,
     else "P" (the shipped PD servo), "PI" (integral action) or "FF" (reaction fed forward)."""
@@ -59,7 +59,7 @@ def _run(tmp_path: Path, arm: str | None, ki: float = KI):
     scene = scene_from_mjcf(xml, base=base.scenario)
     m = mujoco.MjModel.from_xml_path(str(xml))
     d = mujoco.MjData(m)
-    coupler = attach(m, d, scene, gripper="hand", fe_model=scene.scenario.model(elements=(2, 2, 1)),
+    coupler = attach(m, d, scene, gripper="hand", fe_model=scene.scenario.model(elements=elements),
                      stiffness=arm is not None)
     controller = None if arm is None else PositionController(
         m, ki=ki if arm == "PI" else 0.0, coupler=coupler if arm == "FF" else None)
