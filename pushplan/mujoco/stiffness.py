@@ -37,7 +37,9 @@ for the block alone, 1.65 with kp, and the run is stable at dt = 1 ms).
 ``couple()`` checks (3) each period and warns (:class:`CouplingWarning`) when it
 fails; it warns too when the gripper force alternates period to period by more than
 :data:`OSCILLATION` of its size three times in a row, whatever the mode.  The moment
-on the gripper stays the period's (no rotational stiffness).
+on the gripper stays the period's (no rotational stiffness).  An arm whose servo is
+P or PD only rests off its command by its load over its gain; :mod:`.arm` brings it
+to its command (integral action, or this reaction fed forward).
 """
 
 from __future__ import annotations

@@ -18,7 +18,9 @@ batch of 32 on 2 workers, left one worker idle for up to 4 rollouts at the end: 
 to 25 % of the batch's wall time), and a rollout that needs more Newton
 iterations does not hold the others back.
 Every rollout runs the same code on the same inputs as a single call in this
-process (the BLAS of each worker on one thread), so the numbers are the same
+process (the BLAS of each worker on one thread, also when the user's
+``OPENBLAS_NUM_THREADS`` gave the calling process more: two workers of two
+threads each on two cores would wait for each other), so the numbers are the same
 (``tests/test_batch_rollouts.py`` checks them to 1e-12).
 
 Cost: a worker's start costs a fork (about 10 ms) plus, per start state, the
@@ -61,7 +63,12 @@ def _context():
 
 def _serve(conn, push) -> None:
     """A worker's loop: hold start states by key, run chunks of rollouts, reply."""
-    os.environ["FE_CONTACT_DENSE_THREADS"] = "1"  # the cores are the pool's
+    from threadpoolctl import threadpool_limits
+
+    # the cores are the pool's: one BLAS thread per worker, in the dense kernels too,
+    # whatever the user's thread variables gave the calling process
+    os.environ["FE_CONTACT_DENSE_THREADS"] = "1"
+    threadpool_limits(limits=1, user_api="blas")
     states = {}
     while True:
         try:
