@@ -122,8 +122,9 @@ def test_the_p_only_arm_sags_by_its_load_over_kp(tmp_path, mocap):
     assert np.linalg.norm(position - truth_position) > 10 * SAME_POSE * np.linalg.norm(truth_position[:2])
 
 
-def test_too_much_integral_gain_oscillates_and_the_coupler_says_so(tmp_path):
+def test_too_much_integral_gain_oscillates_and_the_coupler_says_so(tmp_path, monkeypatch):
     """Above bound (2) of pushplan.mujoco.arm (686 1/s for the x carriage) the loop is unstable."""
+    monkeypatch.chdir(tmp_path)  # a MUJOCO_LOG.TXT, should MuJoCo's step blow up, lands here
     with pytest.warns(CouplingWarning, match="alternates period to period"):
         _run(tmp_path, "PI", ki=1000.0)
 
