@@ -131,3 +131,22 @@ def test_the_guided_chunks_cover_the_batch_once_and_shrink_to_one_rollout():
         assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1
         assert len(sent) <= 2 * processes * (1 + np.log(n))
     assert [len(c) for c in iter(_Guided(list(range(32)), 2).pop, [])] == [8, 6, 5, 4, 3, 2, 1, 1, 1, 1]
+
+
+class _BlasThreads(PushModel):
+    """A model whose "rollout" reports the BLAS thread counts of the process it runs in."""
+
+    def rollout(self, commands, start=None):
+        from threadpoolctl import threadpool_info
+
+        return np.array([[i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]], float)
+
+
+def test_the_workers_run_blas_on_one_thread_whatever_the_caller_allows(push):
+    """A caller on two BLAS threads (a user's OPENBLAS_NUM_THREADS=2): two workers of two
+    threads each would share two cores; each worker limits its BLAS to one thread."""
+    from threadpoolctl import threadpool_limits
+
+    with _BlasThreads(push.model, push.press) as probe, threadpool_limits(limits=2, user_api="blas"):
+        counts = probe.batch_rollouts(_controls(2), processes=2)
+    assert counts.size and (counts == 1).all()
