@@ -113,3 +113,40 @@ def test_a_dead_worker_closes_the_pool_and_the_next_batch_starts_a_new_one(push)
     again = push.batch_rollouts(controls, processes=2)
     assert push.pool(2) is not pool
     assert np.abs(again - np.array([push.rollout(c) for c in controls])).max() <= TOL
+
+
+def test_the_guided_chunks_cover_the_batch_once_and_shrink_to_one_rollout():
+    """The pool's schedule (pushplan.planning.batch): each chunk ceil(remaining / 2P), so the
+    last ones hold one rollout (a worker waits at most one rollout at the end of a batch);
+    every rollout is sent once, in order; the messages grow as log n."""
+    from pushplan.planning.batch import _Guided
+
+    for n, processes in ((32, 2), (7, 3), (1, 2), (100, 1)):
+        chunks = _Guided(list(range(n)), processes)
+        sent = []
+        while chunks:
+            sent.append(chunks.pop())
+        assert [i for chunk in sent for i in chunk] == list(range(n))
+        sizes = [len(c) for c in sent]
+        assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1
+        assert len(sent) <= 2 * processes * (1 + np.log(n))
+    assert [len(c) for c in iter(_Guided(list(range(32)), 2).pop, [])] == [8, 6, 5, 4, 3, 2, 1, 1, 1, 1]
+
+
+class _BlasThreads(PushModel):
+    """A model whose "rollout" reports the BLAS thread counts of the process it runs in."""
+
+    def rollout(self, commands, start=None):
+        from threadpoolctl import threadpool_info
+
+        return np.array([[i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]], float)
+
+
+def test_the_workers_run_blas_on_one_thread_whatever_the_caller_allows(push):
+    """A caller on two BLAS threads (a user's OPENBLAS_NUM_THREADS=2): two workers of two
+    threads each would share two cores; each worker limits its BLAS to one thread."""
+    from threadpoolctl import threadpool_limits
+
+    with _BlasThreads(push.model, push.press) as probe, threadpool_limits(limits=2, user_api="blas"):
+        counts = probe.batch_rollouts(_controls(2), processes=2)
+    assert counts.size and (counts == 1).all()

@@ -182,6 +182,14 @@ class CoSimulation:
         yaw = matrix_yaw(R)
         return p + rz(yaw) @ self._offset, yaw
 
+    def gripper_wrench(self) -> tuple[np.ndarray, np.ndarray]:
+        """The wrench the arm must supply to hold the block's reaction now (world, N, N m about
+        the gripper body's centre of mass): ``F_g`` and its moment, linearised at the
+        gripper's pose now with ``stiffness=True`` (:mod:`.stiffness`, eq. (2))."""
+        if self._reaction is not None:
+            return self._reaction.wrench()
+        return self.gripper_force.copy(), self._moment_at_com.copy()
+
     def _frame_position(self) -> np.ndarray:
         """(3,) world origin of the gripper body or site now."""
         d = self.mj_data

@@ -37,7 +37,9 @@ for the block alone, 1.65 with kp, and the run is stable at dt = 1 ms).
 ``couple()`` checks (3) each period and warns (:class:`CouplingWarning`) when it
 fails; it warns too when the gripper force alternates period to period by more than
 :data:`OSCILLATION` of its size three times in a row, whatever the mode.  The moment
-on the gripper stays the period's (no rotational stiffness).
+on the gripper stays the period's (no rotational stiffness).  An arm whose servo is
+P or PD only rests off its command by its load over its gain; :mod:`.arm` brings it
+to its command (integral action, or this reaction fed forward).
 """
 
 from __future__ import annotations
@@ -110,9 +112,15 @@ class LinearisedReaction:
         c = self.coupler
         if d is not c.mj_data or self.centre is None or c._gbody == 0:
             return
-        centre, _ = c.drive_pose()
-        force = self.force + self.stiffness @ (centre - self.centre)
-        mujoco_module().mj_applyFT(m, d, -force, -self.moment, d.xipos[c._gbody].copy(), c._gbody, d.qfrc_passive)
+        force, moment = self.wrench()
+        mujoco_module().mj_applyFT(m, d, -force, -moment, d.xipos[c._gbody].copy(), c._gbody, d.qfrc_passive)
+
+    def wrench(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(F_g + K (c - c_0), M)`` of eq. (2) at the gripper's pose now (world, N, N m)."""
+        if self.centre is None:
+            return self.force, self.moment
+        centre, _ = self.coupler.drive_pose()
+        return self.force + self.stiffness @ (centre - self.centre), self.moment
 
     def close(self) -> None:
         mujoco_module().set_mjcb_passive(self._previous)

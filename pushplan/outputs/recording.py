@@ -237,7 +237,15 @@ class Recorder(PlanOverlays):
             self._tmp.unlink(missing_ok=True)
             raise
         self.stream.send_recording_name(run_name)
+        self._log_static(scenario)
+        self._closed = False
+        self._phase = "command"
+        self._log_reference()
 
+    def _log_static(self, scenario: dict | None) -> None:
+        """The timeless entities: run info (with the scenario), axes, mesh topology,
+        contact classes, plot series names, floor, friction ellipse."""
+        rr, mesh, run_name, field = self._rr, self.mesh, self.run_name, self.field
         spec = None
         if scenario is not None:
             spec = json.loads(json.dumps(scenario))  # deep copy, JSON-ready
@@ -253,9 +261,6 @@ class Recorder(PlanOverlays):
         log("world/floor", scene.floor(rr, mesh.size), static=True)
         if spec is not None and "friction" in spec:
             log("world/friction", *scene.friction_ellipse(rr, mesh.size, spec["friction"]), static=True)
-        self._closed = False
-        self._phase = "command"
-        self._log_reference()
 
     # -- blueprint ---------------------------------------------------------------------
     def _blueprint(self, plan: bool):

@@ -10,11 +10,17 @@ start state; later batches from the same state send its key only.  Workers
 stay alive between batches until :meth:`RolloutPool.close` (or the end of a
 ``with`` block, or the pool's collection).
 
-Scheduling is dynamic: the rollouts go out in chunks of
-``ceil(n / (4 * processes))``, the next chunk to the first idle worker, so a
-rollout that needs more Newton iterations does not hold the others back.
+Scheduling is dynamic and guided: the next chunk goes to the first idle worker
+and holds ``ceil(r / (2 * processes))`` of the ``r`` rollouts not yet sent, so
+chunks shrink to one rollout at the end of a batch: a worker waits for the last
+one at most one rollout (fixed chunks of ``n / (4 * processes)``, 4 rollouts of a
+batch of 32 on 2 workers, left one worker idle for up to 4 rollouts at the end: up
+to 25 % of the batch's wall time), and a rollout that needs more Newton
+iterations does not hold the others back.
 Every rollout runs the same code on the same inputs as a single call in this
-process (the BLAS of each worker on one thread), so the numbers are the same
+process (the BLAS of each worker on one thread, also when the user's
+``OPENBLAS_NUM_THREADS`` gave the calling process more: two workers of two
+threads each on two cores would wait for each other), so the numbers are the same
 (``tests/test_batch_rollouts.py`` checks them to 1e-12).
 
 Cost: a worker's start costs a fork (about 10 ms) plus, per start state, the
@@ -57,7 +63,12 @@ def _context():
 
 def _serve(conn, push) -> None:
     """A worker's loop: hold start states by key, run chunks of rollouts, reply."""
-    os.environ["FE_CONTACT_DENSE_THREADS"] = "1"  # the cores are the pool's
+    from threadpoolctl import threadpool_limits
+
+    # the cores are the pool's: one BLAS thread per worker, in the dense kernels too,
+    # whatever the user's thread variables gave the calling process
+    os.environ["FE_CONTACT_DENSE_THREADS"] = "1"
+    threadpool_limits(limits=1, user_api="blas")
     states = {}
     while True:
         try:
@@ -124,6 +135,23 @@ def _stop(workers) -> None:
             w.process.join()
 
 
+class _Guided:
+    """The chunks of a batch, each ``ceil(remaining / (2 * processes))`` of the
+    ``(index, commands)`` pairs not yet handed out (module docstring)."""
+
+    def __init__(self, items: list, processes: int):
+        self._items, self._next, self._parts = items, 0, 2 * processes
+
+    def __bool__(self) -> bool:
+        return self._next < len(self._items)
+
+    def pop(self) -> list:
+        size = math.ceil((len(self._items) - self._next) / self._parts)
+        chunk = self._items[self._next:self._next + size]
+        self._next += size
+        return chunk
+
+
 class RolloutPool:
     """``processes`` warm workers of one :class:`PushModel` (module docstring).
 
@@ -183,8 +211,7 @@ class RolloutPool:
         if self.closed:
             raise ValueError("the rollout pool is closed")
         key = self._key(start)
-        size = max(1, math.ceil(len(batch) / (4 * self.processes)))
-        chunks = [list(enumerate(batch))[i:i + size] for i in range(0, len(batch), size)][::-1]
+        chunks = _Guided(list(enumerate(batch)), self.processes)
         results, busy = {}, {}
         try:
             for w in self._workers:

@@ -91,28 +91,7 @@ class ReducedPlanner:
         A, rho, sigma = opti.variable(d, K), opti.variable(1, K), opti.variable(1, K)
         par = {name: opti.parameter(n) for name, n in
                (("target", 3), ("modifier", 3), ("lag0", 3), ("active", K), ("weights", 3))}
-        law = push_law(params)
-        lower, upper, cmds = [ca.DM.zeros(3, 1)], [par["lag0"]], []
-        effort = pinned = 0
-        for k in range(K):
-            a, on = A[:, k], par["active"][k]
-            # without a yaw target the force has no torque and the slip no yaw
-            p, u, _ = law(lower[-1], a if spec.yaw_targeted else ca.vertcat(a, 0), rho[k],
-                          spec.max_step * sigma[k])
-            # an inactive step (on = 0) keeps the poses: its variables only pin themselves
-            p, u = on * p + (1 - on) * lower[-1], on * u + (1 - on) * upper[-1]
-            pinned += (1 - on) * ((a[0] - 1) ** 2 + ca.sumsqr(a[1:]) + rho[k] ** 2 + sigma[k] ** 2)
-            du = u - upper[-1]
-            lower.append(p)
-            upper.append(u)
-            cmds.append(du)
-            # constraints in units of the bounds: ipopt's feasibility tolerance is absolute
-            opti.subject_to(ca.sumsqr(a) == 1)
-            opti.subject_to(ca.sumsqr(du[:2] / spec.max_step) <= 1)
-            effort += ca.sumsqr(du[:2] / spec.max_step)
-            if spec.yaw_targeted:
-                opti.subject_to(opti.bounded(-1, du[2] / spec.max_dtheta, 1))
-                effort += (du[2] / spec.max_dtheta) ** 2
+        lower, upper, cmds, effort, pinned = _chain(ca, opti, push_law(params), (A, rho, sigma), par, spec)
         opti.subject_to(opti.bounded(0, rho, 1))
         opti.subject_to(sigma >= 0)
         opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
@@ -225,6 +204,36 @@ class ReducedPlanner:
             wall_time=wall,
             variables={"A": mat(self._A, self._A.shape[0]), "rho": mat(self._rho, 1), "sigma": mat(self._sigma, 1)},
         )
+
+
+def _chain(ca, opti, law, variables, par, spec: PlanSpec):
+    """The poses of :class:`ReducedPlanner` step by step through ``law`` (its docstring),
+    with the per-step constraints added to ``opti``: (lower poses, upper poses, commands,
+    effort term, pinning term of the inactive steps)."""
+    A, rho, sigma = variables
+    K = spec.steps
+    lower, upper, cmds = [ca.DM.zeros(3, 1)], [par["lag0"]], []
+    effort = pinned = 0
+    for k in range(K):
+        a, on = A[:, k], par["active"][k]
+        # without a yaw target the force has no torque and the slip no yaw
+        p, u, _ = law(lower[-1], a if spec.yaw_targeted else ca.vertcat(a, 0), rho[k],
+                      spec.max_step * sigma[k])
+        # an inactive step (on = 0) keeps the poses: its variables only pin themselves
+        p, u = on * p + (1 - on) * lower[-1], on * u + (1 - on) * upper[-1]
+        pinned += (1 - on) * ((a[0] - 1) ** 2 + ca.sumsqr(a[1:]) + rho[k] ** 2 + sigma[k] ** 2)
+        du = u - upper[-1]
+        lower.append(p)
+        upper.append(u)
+        cmds.append(du)
+        # constraints in units of the bounds: ipopt's feasibility tolerance is absolute
+        opti.subject_to(ca.sumsqr(a) == 1)
+        opti.subject_to(ca.sumsqr(du[:2] / spec.max_step) <= 1)
+        effort += ca.sumsqr(du[:2] / spec.max_step)
+        if spec.yaw_targeted:
+            opti.subject_to(opti.bounded(-1, du[2] / spec.max_dtheta, 1))
+            effort += (du[2] / spec.max_dtheta) ** 2
+    return lower, upper, cmds, effort, pinned
 
 
 @contextlib.contextmanager
