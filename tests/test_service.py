@@ -103,6 +103,17 @@ def test_warm_replans_through_the_service_equal_the_in_process_session(client, r
     s.close()
 
 
+def test_a_closed_loop_replan_needs_a_plan_to_follow_and_leaves_the_session_as_it_was(client):
+    s = client.open(SCENARIO, verify=False)
+    code, msg = _code(lambda: s.replan([PUSHES[0]], OBSERVED[0], closed_loop=True))
+    assert code == "INVALID_ARGUMENT" and "closed_loop" in msg and s.state()["executed"] == 0
+    first = s.plan()
+    code, msg = _code(lambda: s.replan([], OBSERVED[0], closed_loop=True))
+    assert code == "INVALID_ARGUMENT" and "pushes since the last plan" in msg and s.state()["executed"] == 0
+    assert s.replan([first["commands"][0]], OBSERVED[0], closed_loop=True)["status"]
+    s.close()
+
+
 def test_rollout_returns_the_exact_jacobian(client):
     s = client.open(SCENARIO, verify=False)
     commands = [[1e-4, 0.5e-4, 0.0]] * 3

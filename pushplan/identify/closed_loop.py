@@ -201,7 +201,7 @@ def modifier(spec: PlanSpec, bias: np.ndarray, drift: np.ndarray, springback: np
     return (1.0 - s) * bias - s * drift
 
 
-def _shifted(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
+def shifted_spec(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
     """``spec`` aiming at ``target - shift`` (:func:`modifier`), within
     :data:`REPLAN_TOLERANCE` of the tolerances."""
     mask = np.array([1.0, 1.0, float(spec.yaw_targeted)])
@@ -226,7 +226,7 @@ def _step(model_sc, spec, truth, k, first, use_identify, noise, log, bias, shift
                 log(f"step {k + 1}: identified " + ", ".join(f"{n} = {v:.5g}" for n, v in zip(est.names, est.estimate, strict=True)))
         # the loop never reads the naive rollout: no baseline
         # warm in the session; cold with identification (another model each push)
-        result, _ = replan(model_sc, _shifted(spec, shift), obs, baseline=False, session=session)
+        result, _ = replan(model_sc, shifted_spec(spec, shift), obs, baseline=False, session=session)
     command = planar_commands(result.commands[:1])[0]
     planned = result.verified.lower + (truth.pose if k > 0 else 0.0)  # a re-plan's poses are relative
     planned[1:] += bias  # what the plan expects of the truth

@@ -91,7 +91,8 @@ def _loopback(host: str) -> bool:
         return False
 
 
-PRELOAD = ("pushplan.service.worker", "pushplan.config.scenario", "pushplan.planning.planner")
+PRELOAD = ("pushplan.service.worker", "pushplan.config.scenario", "pushplan.planning.planner",
+           "pushplan.planning.replan", "pushplan.identify.closed_loop")
 """Imported once by the fork server, so a session's process starts with them (numpy, scipy,
 CasADi, fe_contact's kernels): an open pays the model's build only."""
 
