@@ -99,19 +99,21 @@ def serve(root: Path) -> tuple[subprocess.Popen, str]:
     return proc, line.split("listening on ")[1].strip()
 
 
-def _pacer(robot: Robot, realtime: bool):
-    """None, or a callable that holds each period to the wall clock (counts overruns)."""
+def _pacer(period: float, realtime: bool):
+    """None, or a callable that holds each period to ``period`` s of wall clock after the
+    previous one and counts the periods that overran (a late period starts the next at once)."""
     if not realtime:
         return None
-    t0, state = time.perf_counter(), {"overruns": 0}
+    state = {"overruns": 0, "last": time.perf_counter()}
 
     def pace():
-        due = t0 + robot.periods * robot.period
-        late = time.perf_counter() - due
-        if late > 0:
+        due, now = state["last"] + period, time.perf_counter()
+        if now > due:
             state["overruns"] += 1
+            state["last"] = now
         else:
-            time.sleep(-late)
+            time.sleep(due - now)
+            state["last"] = due
 
     pace.state = state
     return pace
@@ -122,9 +124,9 @@ def control_loop(address: str, model: Path, truth: Path, periods: int, realtime:
     from pushplan.client import Client
 
     robot = Robot(truth)
-    pace = _pacer(robot, realtime)
     with Client(address) as client:
         session = client.open(scenario_path=str(model))  # both meshes: the first plan is verified
+        pace = _pacer(robot.period, realtime)
         moves = len(session.info["press"]) + session.info["steps"]
         if periods % moves:
             raise ValueError(f"--periods {periods}: not a multiple of the {moves} moves (press and pushes)")

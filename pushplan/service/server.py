@@ -18,6 +18,7 @@ import ipaddress
 import itertools
 import json
 import multiprocessing
+import multiprocessing.forkserver
 import threading
 import time
 from concurrent import futures
@@ -102,6 +103,9 @@ def _context():
     threads a fork would copy), with :data:`PRELOAD` imported once."""
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(PRELOAD))
+    # start the fork server now: its imports (seconds) run while the server waits for its
+    # first client, not inside the first Open
+    multiprocessing.forkserver.ensure_running()
     return ctx
 
 
@@ -123,6 +127,7 @@ class Planner:
         fn = getattr(self, "_" + method.lower())
 
         def handle(raw: bytes, context) -> bytes:
+            t0 = time.perf_counter()
             try:
                 self._authorise(context)
                 try:
@@ -131,7 +136,8 @@ class Planner:
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, f"request: not a UTF-8 JSON object ({e})") from None
                 if not isinstance(request, dict):
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, "request: not a JSON object")
-                return json.dumps(fn(request, context)).encode()
+                answer = fn(request, context)
+                return json.dumps(answer | {"server_s": time.perf_counter() - t0}).encode()
             except _Abort as e:
                 context.abort(e.code, str(e))
             except InputError as e:

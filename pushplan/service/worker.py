@@ -173,8 +173,12 @@ class SessionState:
 
 
 def _reply(conn, fn, *args) -> None:
+    """Send ``fn(*args)`` with ``session_s`` and ``session_cpu_s``, the wall and CPU time (s)
+    it took in this process, or the error."""
     try:
-        conn.send(("ok", fn(*args)))
+        t0, c0 = time.perf_counter(), time.process_time()
+        result = fn(*args)
+        conn.send(("ok", result | {"session_s": time.perf_counter() - t0, "session_cpu_s": time.process_time() - c0}))
     except InputError as e:
         conn.send(("error", "input", " ".join(str(e).split())))
     except SolverFailure as e:
