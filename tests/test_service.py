@@ -100,6 +100,8 @@ def test_warm_replans_through_the_service_equal_the_in_process_session(client, r
     for got, want in zip(_loop(s, answer), replans, strict=True):
         np.testing.assert_allclose(got["commands"], want.commands, rtol=0, atol=1e-15)
         np.testing.assert_allclose(got["poses"], want.verified.lower, rtol=0, atol=1e-15)
+        # where the time went: the planner's inside the session's, the session's inside the server's
+        assert 0 < got["wall_time_s"] <= got["session_s"] <= got["server_s"] and got["session_cpu_s"] > 0
     s.close()
 
 
