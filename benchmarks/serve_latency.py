@@ -35,6 +35,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -56,7 +57,8 @@ def _stats(times) -> dict:
 
 
 def _tree_cpu(pid: int) -> float:
-    """User + system CPU seconds of ``pid`` and its descendants (from /proc)."""
+    """User + system CPU seconds of ``pid`` and its descendants, the ended ones they waited
+    for included (from /proc)."""
     parent, cpu = {}, {}
     tick = os.sysconf("SC_CLK_TCK")
     for d in Path("/proc").iterdir():
@@ -67,7 +69,7 @@ def _tree_cpu(pid: int) -> float:
         except OSError:
             continue
         parent[int(d.name)] = int(fields[1])
-        cpu[int(d.name)] = (int(fields[11]) + int(fields[12])) / tick
+        cpu[int(d.name)] = sum(int(f) for f in fields[11:15]) / tick
     tree, grew = {pid}, True
     while grew:
         new = {p for p, pp in parent.items() if pp in tree} - tree
@@ -272,6 +274,10 @@ def main(argv=None) -> int:
             doc["server_idle_cpu_s_per_s"] = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
             s.close()
         doc["isolation"] = measure_isolation(address, text, args.clients, args.replans)
+        # the CPU the whole run took (at idle on 2 cores its wall time is about half of it)
+        own = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        doc["cpu_s"] = {"client_and_its_children": sum(r.ru_utime + r.ru_stime for r in own),
+                        "server_tree": _tree_cpu(server.pid)}
     finally:
         server.terminate()
         doc["server_exit"] = server.wait(60)
@@ -300,7 +306,8 @@ def _summary(doc: dict) -> None:
     print(f"rollout ratio {doc['rollout_ratio_median']:.3f}, re-plan ratio {doc['warm_replan_ratio_median']:.3f}; "
           f"server idle CPU {doc['server_idle_cpu_s_per_s']:.4f} s/s; isolation all equal "
           f"{doc['isolation']['all_equal']}; load average {doc['load_average_before'][0]:.1f} -> "
-          f"{doc['load_average_after'][0]:.1f} on {doc['cores']} cores; {doc['benchmark_wall_s']:.0f} s")
+          f"{doc['load_average_after'][0]:.1f} on {doc['cores']} cores; {doc['benchmark_wall_s']:.0f} s wall, CPU "
+          f"{doc['cpu_s']['client_and_its_children']:.0f} s client + {doc['cpu_s']['server_tree']:.0f} s server")
 
 
 if __name__ == "__main__":
