@@ -18,7 +18,6 @@ import ipaddress
 import itertools
 import json
 import multiprocessing
-import multiprocessing.forkserver
 import threading
 import time
 from concurrent import futures
@@ -28,7 +27,7 @@ from pathlib import Path
 import grpc
 
 from ..errors import InputError
-from .worker import worker_main
+from .worker import ready, worker_main
 
 SERVICE = "pushplan.Planner"
 """The gRPC service name; methods are ``/pushplan.Planner/<Method>``."""
@@ -103,9 +102,11 @@ def _context():
     threads a fork would copy), with :data:`PRELOAD` imported once."""
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(PRELOAD))
-    # start the fork server now: its imports (seconds) run while the server waits for its
-    # first client, not inside the first Open
-    multiprocessing.forkserver.ensure_running()
+    # the fork server's imports (seconds) happen now, before the server says it listens, not
+    # inside the first Open: a first process from it waits for them
+    first = ctx.Process(target=ready, name="pushplan-forkserver-ready")
+    first.start()
+    first.join()
     return ctx
 
 

@@ -187,6 +187,10 @@ def _reply(conn, fn, *args) -> None:
         conn.send(("error", "bug", f"{type(e).__name__}: {' '.join(str(e).split())}"))
 
 
+def ready() -> None:
+    """Nothing: the process the server starts first, to wait for the fork server's imports."""
+
+
 def worker_main(conn, scenario_text: str, name: str, verify: bool) -> None:
     """The session process: build the session, then answer requests until ``close`` or
     the pipe closes.  The first reply is the open's (``info`` or the error)."""
