@@ -15,6 +15,7 @@ without the verification mesh):
   so both see the same load: per call, overhead = service time - in-process time;
 - **rollouts** of 3 pushes from the press, ``--calls`` times at most (none started after
   ``--rollout-budget`` s), alternating service and in-process;
+- a session's ``Info`` round trip, ``--calls`` times: the wire with no work behind it;
 - the server's CPU (its process tree, user + system) over ``--idle`` s with an open session
   and no call (idle = 0);
 - **isolation**: ``--clients`` client processes at once, each its own session, a plan and
@@ -269,6 +270,12 @@ def main(argv=None) -> int:
         doc |= measure_rollouts(address, text, args.calls, args.rollout_budget)
         with Client(address) as c:
             s = c.open(scenario_path=str(SCENARIO), verify=False)
+            trips = []
+            for _ in range(args.calls):  # the wire alone: a session's Info does no work
+                t0 = time.perf_counter()
+                s.state()
+                trips.append(time.perf_counter() - t0)
+            doc["session_info_round_trip"] = _stats(trips)
             cpu0, t0 = _tree_cpu(server.pid), time.perf_counter()
             time.sleep(args.idle)  # the measured interval itself: the server's CPU while nobody calls
             doc["server_idle_cpu_s_per_s"] = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
@@ -302,7 +309,8 @@ def _summary(doc: dict) -> None:
           f"{o['p99_s'] * ms:.2f} ms; the wire (client time - session time, same call) median {w['median_s'] * ms:.2f} ms,"
           f" p99 {w['p99_s'] * ms:.2f} ms: " + ", ".join(f"{k} {v * ms:.2f} ms" for k, v in parts.items()))
     print(f"rollout: the wire median {doc['rollout_wire']['median_s'] * ms:.2f} ms, p99 "
-          f"{doc['rollout_wire']['p99_s'] * ms:.2f} ms")
+          f"{doc['rollout_wire']['p99_s'] * ms:.2f} ms; a session's Info (no work) round trip median "
+          f"{doc['session_info_round_trip']['median_s'] * ms:.2f} ms, p99 {doc['session_info_round_trip']['p99_s'] * ms:.2f} ms")
     print(f"rollout ratio {doc['rollout_ratio_median']:.3f}, re-plan ratio {doc['warm_replan_ratio_median']:.3f}; "
           f"server idle CPU {doc['server_idle_cpu_s_per_s']:.4f} s/s; isolation all equal "
           f"{doc['isolation']['all_equal']}; load average {doc['load_average_before'][0]:.1f} -> "
