@@ -279,6 +279,7 @@ def main(argv=None) -> int:
             cpu0, t0 = _tree_cpu(server.pid), time.perf_counter()
             time.sleep(args.idle)  # the measured interval itself: the server's CPU while nobody calls
             doc["server_idle_cpu_s_per_s"] = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
+            doc["server_idle_resolution_s_per_s"] = 1.0 / os.sysconf("SC_CLK_TCK") / args.idle  # one clock tick
             s.close()
         doc["isolation"] = measure_isolation(address, text, args.clients, args.replans)
         # the CPU the whole run took (at idle on 2 cores its wall time is about half of it)
