@@ -7,9 +7,11 @@ without the verification mesh):
 
 - **the closed loop**, ``--loops`` times at most (no new loop after ``--loop-budget`` s): ``Open``, ``Plan``, then the loop's 5 warm
   re-plans (``Replan``, ``closed_loop=True``, as ``pushplan closed-loop`` re-plans) on the
-  observations of a truth with 0.8 times the model's friction (the case of
-  ``benchmarks/replan_warm.py``, the issue's 35 ms; the truth on the planning mesh, run once
-  before the timing: the answers are deterministic, and every loop's are checked equal).
+  observations of a truth with 0.8 times the model's friction on the verification mesh
+  12 x 12 x 4 (the truth of ``benchmarks/replan_warm.py``, the issue's 35 ms; run once before
+  the timing: the answers are deterministic, and every loop's are checked equal).  Unlike
+  ``closed-loop``, whose first plan is verified on both meshes, the sessions plan on the
+  planning mesh alone, so the re-plans follow that first plan.
   Each loop through the service is followed by the same loop in this process
   (:class:`pushplan.service.worker.SessionState`, the session's own code without the wire),
   so both see the same load: per call, overhead = service time - in-process time;
@@ -100,7 +102,6 @@ def closed_loop_requests(text: str) -> tuple[list[dict], list]:
     data = tomllib.loads(text)
     data["friction"] = {**data["friction"], "mu_x": data["friction"]["mu_x"] * TRUTH_FRICTION,
                         "mu_y": data["friction"]["mu_y"] * TRUTH_FRICTION}
-    data["block"] |= {"elements": data["plan"]["planning_elements"], "quadrature": data["plan"]["planning_quadrature"]}
     truth_sc = parse_scenario(data, name="truth")
     truth = truth_sc.model()
     state = drive(truth, press_commands(truth_sc)).state
