@@ -37,6 +37,7 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	for script in local_solvers paper_case planning_step scaling planner; do \
 		$(BIN)/python benchmarks/$$script.py || exit 1; done
+	$(BIN)/python benchmarks/tables.py   # docs/measurements.md from the new results
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .hypothesis

@@ -53,3 +53,17 @@ def test_the_aspect_ratio_of_unknown_extents_is_nan_without_a_warning(recwarn):
 
     assert np.isnan(_ratio(float("nan"), 1.0)) and _ratio(1.0, 0.0) == float("inf") and _ratio(1.0, 2.0) == 0.5
     assert not recwarn.list
+
+
+def test_paper_quiet_prints_nothing(tmp_path, capsys):
+    """``paper --quiet`` on a coarse mesh: no per-case lines, no claims, no report path, and
+    no RuntimeWarning from the claims' ratios (the issue's 13 lines and 2 warnings)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning printed by --quiet would be one of ours: fail on it
+        assert main(["paper", "--elements", "2", "2", "1", "--quadrature", "2", "--quiet",
+                     "--out", str(tmp_path / "paper")]) == 0
+    captured = capsys.readouterr()
+    assert (captured.out, captured.err) == ("", "")
+    assert (tmp_path / "paper" / "report.md").stat().st_size > 100

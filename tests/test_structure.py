@@ -10,7 +10,21 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_MODULE_LINES = 500
-MAX_FUNCTION_LINES = 80
+MAX_FUNCTION_LINES = 60
+# TEMPORARY (issue 44): functions over MAX_FUNCTION_LINES that other branches are splitting
+# (newton.equilibrium, measure, the two of derivatives, recording and nlp __init__, cmd_plan,
+# parse_plan); the coordinator empties
+# this set after merging them. Nothing else may be added here.
+SPLIT_ELSEWHERE = {
+    "fe_contact/stepping/newton.py:equilibrium",
+    "fe_contact/stepping/measure.py:measure",
+    "fe_contact/stepping/derivatives.py:rollout_derivatives",
+    "fe_contact/stepping/derivatives.py:check_derivatives",
+    "pushplan/outputs/recording.py:__init__",
+    "pushplan/planning/nlp.py:__init__",
+    "pushplan/cli/plan.py:cmd_plan",
+    "pushplan/config/plan.py:parse_plan",
+}
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
 LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "studies", "service",
           "cli")
@@ -127,7 +141,7 @@ def test_modules_and_functions_are_small(package):
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 n = node.end_lineno - node.lineno + 1
-                if n > MAX_FUNCTION_LINES:
+                if n > MAX_FUNCTION_LINES and f"{path.relative_to(ROOT)}:{node.name}" not in SPLIT_ELSEWHERE:
                     long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
     assert not long, "\n".join(long)
 
@@ -140,7 +154,7 @@ def kernel_sources() -> list[Path]:
 def test_compiled_kernels_follow_the_module_rules_and_are_built():
     """Each ``.pyx`` lives in a layer of fe_contact, imports (``import``, ``cimport``,
     ``from``) nothing of a higher layer nor of pushplan/mujoco/rerun, is <= 500 lines
-    with top-level functions <= 80, and its extension module imports from the file
+    with top-level functions <= 60 (``MAX_FUNCTION_LINES``), and its extension module imports from the file
     built beside it, no older than the source (an editable install does not rebuild:
     ``make`` reinstalls when a ``.pyx`` changes)."""
     import importlib

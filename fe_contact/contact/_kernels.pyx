@@ -153,7 +153,7 @@ def _ac_kernel(const double[:, :] s, const double[:, :] u, const double[:] mu, c
         raise ValueError("_ac_kernel: s, u, fixed must be (n, 3), mu (n,), rho (n, 2), P and Q (n, 3, 3) or empty")
     out = np.empty((n, 3))
     cdef double[:, ::1] F = out
-    cdef double rn, r, p, R, z1, z2, zn, coef, m_act, proj
+    cdef double rn, r, p, R, z1, z2, zn
     cdef double h[2]
     cdef bint active, stick
     with nogil:
@@ -176,23 +176,7 @@ def _ac_kernel(const double[:, :] s, const double[:, :] u, const double[:] mu, c
             else:
                 F[c, 1], F[c, 2] = s[c, 1] - R * h[0], s[c, 2] - R * h[1]
             if jac:
-                if active:
-                    Q[c, 0, 0] = rn
-                else:
-                    P[c, 0, 0] = 1.0
-                if stick:
-                    Q[c, 1, 1] = r
-                    Q[c, 2, 2] = r
-                else:
-                    coef = R / zn if zn > 0.0 else 0.0
-                    m_act = mu[c] if active else 0.0
-                    for i in range(2):
-                        P[c, 1 + i, 0] = -m_act * h[i]
-                        Q[c, 1 + i, 0] = m_act * rn * h[i]
-                        for j in range(2):
-                            proj = (1.0 if i == j else 0.0) - h[i] * h[j]
-                            P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
-                            Q[c, 1 + i, 1 + j] = coef * r * proj
+                _ac_jacobian(P, Q, c, active, stick, rn, r, R, zn, mu[c], h)
             for i in range(3):
                 if fixed[c, i]:
                     F[c, i] = s[c, i]
@@ -201,6 +185,34 @@ def _ac_kernel(const double[:, :] s, const double[:, :] u, const double[:] mu, c
                             P[c, i, j] = 1.0 if i == j else 0.0
                             Q[c, i, j] = 0.0
     return out
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+cdef inline void _ac_jacobian(double[:, :, ::1] P, double[:, :, ::1] Q, Py_ssize_t c, bint active, bint stick,
+                              double rn, double r, double R, double zn, double mu_c, double* h) noexcept nogil:
+    """The Jacobian blocks ``P[c]``, ``Q[c]`` of contact ``c`` (zeroed on entry) as listed in
+    :func:`_ac_kernel`: ``rn``, ``r`` its normal and tangential ``rho``, ``R = mu max(p, 0)``,
+    ``zn = |z|`` and ``h`` (2,) = ``z / |z|`` (0 at ``z = 0``)."""
+    cdef double coef, m_act, proj
+    cdef Py_ssize_t i, j
+    if active:
+        Q[c, 0, 0] = rn
+    else:
+        P[c, 0, 0] = 1.0
+    if stick:
+        Q[c, 1, 1] = r
+        Q[c, 2, 2] = r
+    else:
+        coef = R / zn if zn > 0.0 else 0.0
+        m_act = mu_c if active else 0.0
+        for i in range(2):
+            P[c, 1 + i, 0] = -m_act * h[i]
+            Q[c, 1 + i, 0] = m_act * rn * h[i]
+            for j in range(2):
+                proj = (1.0 if i == j else 0.0) - h[i] * h[j]
+                P[c, 1 + i, 1 + j] = (1.0 if i == j else 0.0) - coef * proj
+                Q[c, 1 + i, 1 + j] = coef * r * proj
 
 
 @cython.boundscheck(False)

@@ -81,14 +81,11 @@ def uzawa(W, q, mx, my, r, tol, max_iter, residual, gauss_seidel=True):
     n = q.shape[0]
     rho = paper_rho(W)
     W = np.ascontiguousarray(W)
-    check_every, window = (1, 10 * _STALL_CHECKS) if gauss_seidel else (10, _STALL_CHECKS)
-    omega = 1.0
+    check_every = 1 if gauss_seidel else 10
+    guard = _Safeguard(gauss_seidel, r)
     history = []
-    best_r, best_res = r, np.inf
-    segment: list[float] = []  # residuals since the last change of the iteration
     # force scale of the problem: a solution is far below _BLOWUP times this
     r_ref = max(np.linalg.norm(r), np.linalg.norm(rho[:, None] * q), 1e-300)
-    stick_inverse = np.zeros((0, 3, 3))
     it = 0
     while it < max_iter:
         u = (W @ r.ravel()).reshape(n, 3) + q
@@ -99,32 +96,55 @@ def uzawa(W, q, mx, my, r, tol, max_iter, residual, gauss_seidel=True):
                 break
             # the normalised residual shrinks as |r| blows up, so size guards it too
             blown_up = not np.isfinite(res) or np.linalg.norm(r) > _BLOWUP * r_ref
-            if res < best_res and not blown_up:
-                best_r, best_res = r.copy(), res
-            segment.append(res)
-            stalled = len(segment) > window and res > _STALL_RATIO * segment[-window - 1]
-            grown = not gauss_seidel and res > _GROWTH * best_res
-            if gauss_seidel and stalled and not blown_up:
-                if stick_inverse.shape[0] == 0:
-                    stick_inverse = _stick_inverses(W, n)
-                else:
-                    omega *= 0.5
-                segment = []
-            elif blown_up or grown or stalled:
-                omega *= 0.5
-                r = best_r.copy()
+            if guard.restart(r, res, blown_up, W):
+                r = guard.best_r.copy()
                 u = (W @ r.ravel()).reshape(n, 3) + q
-                segment = []
         if gauss_seidel:
             r = np.array(r)
-            _gauss_seidel_sweeps(W, q, mx, my, omega * rho, r, 1, stick_inverse)
+            _gauss_seidel_sweeps(W, q, mx, my, guard.omega * rho, r, 1, guard.stick_inverse)
         else:
-            r = _project(r - omega * rho[:, None] * _modified(u, mx, my), mx, my)
+            r = _project(r - guard.omega * rho[:, None] * _modified(u, mx, my), mx, my)
         it += 1
     u = (W @ r.ravel()).reshape(n, 3) + q
     res = residual(r, u)
-    if res > best_res:
-        r, res = best_r, best_res
+    if res > guard.best_res:
+        r, res = guard.best_r, guard.best_res
         u = (W @ r.ravel()).reshape(n, 3) + q
     history.append(res)
     return r, u, it, res, history
+
+
+class _Safeguard:
+    """The state of :func:`uzawa`'s safeguards: the best iterate and its residual, the
+    step factor ``omega`` (halved on trouble), the residuals since the last change of the
+    iteration and the contacts' stick inverses (n, 3, 3), empty until a Gauss-Seidel
+    stall turns them on."""
+
+    def __init__(self, gauss_seidel: bool, r: np.ndarray):
+        self.gauss_seidel = gauss_seidel
+        self.window = 10 * _STALL_CHECKS if gauss_seidel else _STALL_CHECKS
+        self.best_r, self.best_res = r, np.inf
+        self.omega = 1.0
+        self.segment: list[float] = []
+        self.stick_inverse = np.zeros((0, 3, 3))
+
+    def restart(self, r: np.ndarray, res: float, blown_up: bool, W: np.ndarray) -> bool:
+        """Record a check's residual ``res`` of ``r``; True when the iteration must restart
+        from ``best_r`` (``omega`` then halved): blow-up, growth (Jacobi) or a stall."""
+        if res < self.best_res and not blown_up:
+            self.best_r, self.best_res = r.copy(), res
+        self.segment.append(res)
+        stalled = len(self.segment) > self.window and res > _STALL_RATIO * self.segment[-self.window - 1]
+        grown = not self.gauss_seidel and res > _GROWTH * self.best_res
+        if self.gauss_seidel and stalled and not blown_up:
+            if self.stick_inverse.shape[0] == 0:
+                self.stick_inverse = _stick_inverses(W, r.shape[0])
+            else:
+                self.omega *= 0.5
+            self.segment = []
+            return False
+        if blown_up or grown or stalled:
+            self.omega *= 0.5
+            self.segment = []
+            return True
+        return False

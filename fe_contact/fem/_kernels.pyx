@@ -34,10 +34,8 @@ def stvk_forces(const double[:, :, ::1] grad, const double[:, ::1] dvol, const i
     cdef double u[8][3]
     cdef double fe[8][3]
     cdef double H[3][3]
-    cdef double E[3][3]
-    cdef double S[3][3]
     cdef double P[3][3]
-    cdef double s, tr, w, det, min_det = float("inf")
+    cdef double s, det, min_det = float("inf")
     if (grad.shape[1] != 8 or grad.shape[2] != 3 * n_qp or dvol.shape[0] != n_elems
             or elements.shape[0] != n_elems or elements.shape[1] != 8 or U.shape[1] != 3
             or f.shape[0] != 3 * n_nodes):
@@ -61,29 +59,11 @@ def stvk_forces(const double[:, :, ::1] grad, const double[:, ::1] dvol, const i
                         for a in range(8):
                             s = s + u[a][i] * grad[e, a, 3 * q + j]
                         H[i][j] = s
-                for i in range(3):
-                    for j in range(3):
-                        E[i][j] = 0.5 * (H[i][j] + H[j][i] + H[0][i] * H[0][j] + H[1][i] * H[1][j]
-                                         + H[2][i] * H[2][j])
-                tr = E[0][0] + E[1][1] + E[2][2]
-                for i in range(3):
-                    for j in range(3):
-                        S[i][j] = 2.0 * mu * E[i][j]
-                    S[i][i] = S[i][i] + lam * tr
-                w = dvol[e, q]
-                for i in range(3):
-                    for j in range(3):
-                        s = S[i][j]
-                        for k in range(3):
-                            s = s + H[i][k] * S[k][j]
-                        P[i][j] = w * s
+                det = _stvk_piola(H, lam, mu, dvol[e, q], P)
                 for a in range(8):
                     for i in range(3):
                         fe[a][i] = fe[a][i] + (P[i][0] * grad[e, a, 3 * q] + P[i][1] * grad[e, a, 3 * q + 1]
                                                + P[i][2] * grad[e, a, 3 * q + 2])
-                det = ((1.0 + H[0][0]) * ((1.0 + H[1][1]) * (1.0 + H[2][2]) - H[1][2] * H[2][1])
-                       - H[0][1] * (H[1][0] * (1.0 + H[2][2]) - H[1][2] * H[2][0])
-                       + H[0][2] * (H[1][0] * H[2][1] - (1.0 + H[1][1]) * H[2][0]))
                 if det < min_det or det != det:  # a NaN stays, as in numpy's min
                     min_det = det
             for a in range(8):
@@ -91,3 +71,31 @@ def stvk_forces(const double[:, :, ::1] grad, const double[:, ::1] dvol, const i
                 for i in range(3):
                     f[3 * node + i] = f[3 * node + i] + fe[a][i]
     return min_det
+
+
+cdef inline double _stvk_piola(double H[3][3], double lam, double mu, double w, double P[3][3]) noexcept nogil:
+    """At one Gauss point of displacement gradient ``H`` (3, 3): ``P = w (I + H) S`` into ``P``
+    (N m, ``w`` the point's volume, m^3), with ``E = (H + H^T + H^T H) / 2`` and
+    ``S = lam tr(E) I + 2 mu E`` (Pa); returns ``det F = det(I + H)``."""
+    cdef double E[3][3]
+    cdef double S[3][3]
+    cdef double s, tr
+    cdef Py_ssize_t i, j, k
+    for i in range(3):
+        for j in range(3):
+            E[i][j] = 0.5 * (H[i][j] + H[j][i] + H[0][i] * H[0][j] + H[1][i] * H[1][j]
+                             + H[2][i] * H[2][j])
+    tr = E[0][0] + E[1][1] + E[2][2]
+    for i in range(3):
+        for j in range(3):
+            S[i][j] = 2.0 * mu * E[i][j]
+        S[i][i] = S[i][i] + lam * tr
+    for i in range(3):
+        for j in range(3):
+            s = S[i][j]
+            for k in range(3):
+                s = s + H[i][k] * S[k][j]
+            P[i][j] = w * s
+    return ((1.0 + H[0][0]) * ((1.0 + H[1][1]) * (1.0 + H[2][2]) - H[1][2] * H[2][1])
+            - H[0][1] * (H[1][0] * (1.0 + H[2][2]) - H[1][2] * H[2][0])
+            + H[0][2] * (H[1][0] * H[2][1] - (1.0 + H[1][1]) * H[2][0]))

@@ -20,6 +20,7 @@ import scipy.sparse as sp
 __all__ = [
     "SparsityPattern",
     "element_dofs",
+    "check_pattern",
     "sparsity_pattern",
     "assemble_matrix",
     "assemble_vector",
@@ -139,9 +140,6 @@ def sparsity_pattern(elements, n_nodes: int) -> SparsityPattern:
     elements = _check_elements(elements, n_nodes)
     n_nodes = int(n_nodes)
     n_dofs = 3 * n_nodes
-    n_elems = elements.shape[0]
-    dofs = element_dofs(elements)
-    three = np.arange(3)
     # Row-major node-pair keys sort in CSR order, so np.unique gives the
     # node-level structure and, through its inverse, the pair of every entry.
     keys = (elements[:, :, None] * n_nodes + elements[:, None, :]).ravel()
@@ -151,10 +149,23 @@ def sparsity_pattern(elements, n_nodes: int) -> SparsityPattern:
     degree = np.bincount(pair_rows, minlength=n_nodes)
     node_ptr = np.zeros(n_nodes + 1, dtype=np.int64)
     np.cumsum(degree, out=node_ptr[1:])
-    nnz = 9 * pairs.size
-    # scipy's default index type; int64 only when int32 would overflow
-    fits_int32 = max(n_dofs, nnz) < np.iinfo(np.int32).max
-    index_dtype = np.int32 if fits_int32 else np.int64
+    indptr, indices = _dof_rows(pair_cols, degree, node_ptr)
+    return SparsityPattern(
+        n_dofs=n_dofs,
+        indptr=indptr,
+        indices=indices,
+        scatter=_scatter_positions(elements, pair_of, degree, node_ptr),
+        dofs=element_dofs(elements),
+    )
+
+
+def _dof_rows(pair_cols: np.ndarray, degree: np.ndarray, node_ptr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dof-level CSR ``indptr`` (3 n_nodes + 1,) and ``indices`` (9 n_pairs,) from the
+    node-level one (``pair_cols`` the column node of each pair in CSR order, ``degree`` and
+    ``node_ptr`` per node): int32 unless an index would overflow it (scipy's default)."""
+    n_dofs, nnz = 3 * degree.size, 9 * pair_cols.size
+    three = np.arange(3)
+    index_dtype = np.int32 if max(n_dofs, nnz) < np.iinfo(np.int32).max else np.int64
     row_start = (9 * node_ptr[:-1, None] + 3 * degree[:, None] * three).ravel()
     indptr = np.empty(n_dofs + 1, dtype=index_dtype)
     indptr[:-1] = row_start
@@ -164,6 +175,15 @@ def sparsity_pattern(elements, n_nodes: int) -> SparsityPattern:
     pair_dof_cols = ((3 * pair_cols)[:, None] + three).astype(index_dtype).ravel()
     shift = np.repeat(3 * node_ptr[:-1], 3) - row_start
     indices = pair_dof_cols[np.arange(nnz) + np.repeat(shift, np.repeat(3 * degree, 3))]
+    return indptr, indices
+
+
+def _scatter_positions(elements: np.ndarray, pair_of: np.ndarray, degree: np.ndarray,
+                       node_ptr: np.ndarray) -> np.ndarray:
+    """Position in the CSR data of every element matrix entry, (n_elems * 576,) int64,
+    ordered as the element matrices ``(e, 3a + i, 3b + j)``."""
+    n_elems = elements.shape[0]
+    three = np.arange(3)
     # Entry (e, 3a+i, 3b+j), with p the pair (elements[e, a], elements[e, b]) and
     # A = elements[e, a], sits at 9 ptr[A] + 3 i deg[A] + 3 (p - ptr[A]) + j.
     pair_base = (6 * node_ptr[elements])[:, :, None] + 3 * pair_of.reshape(n_elems, 8, 8)
@@ -171,13 +191,21 @@ def sparsity_pattern(elements, n_nodes: int) -> SparsityPattern:
     row_part = ((3 * degree[elements])[:, :, None] * three)[:, :, :, None]  # (e, a, i, 1)
     scatter = np.empty((n_elems, 8, 3, 24), dtype=np.int64)
     np.add(col_part, row_part, out=scatter)
-    return SparsityPattern(
-        n_dofs=n_dofs,
-        indptr=indptr,
-        indices=indices,
-        scatter=scatter.reshape(-1),
-        dofs=dofs,
-    )
+    return scatter.reshape(-1)
+
+
+def check_pattern(pattern, elements: np.ndarray, n_nodes: int) -> None:
+    """Raise ValueError unless ``pattern`` is the :class:`SparsityPattern` of ``elements``
+    (n_elems, 8) on ``n_nodes`` nodes."""
+    if not isinstance(pattern, SparsityPattern):
+        raise ValueError(f"pattern must be a SparsityPattern, got {type(pattern).__name__}")
+    if pattern.n_dofs != 3 * n_nodes or pattern.n_elements != elements.shape[0]:
+        raise ValueError(
+            f"pattern is for {pattern.n_elements} elements / {pattern.n_dofs} dofs, got "
+            f"{elements.shape[0]} elements / {3 * n_nodes} dofs"
+        )
+    if not np.array_equal(pattern.dofs, element_dofs(elements)):
+        raise ValueError("pattern was built for a different connectivity than elements")
 
 
 def assemble_matrix(pattern: SparsityPattern, element_matrices) -> sp.csr_matrix:

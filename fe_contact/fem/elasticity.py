@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._kernels import stvk_forces
-from .assembly import SparsityPattern, assemble_matrix, assemble_vector, element_dofs
+from .assembly import SparsityPattern, assemble_matrix, assemble_vector, check_pattern
 from .element import det3, gauss_hex, hex8_grad, inv3
 from .finite_strain import checked_weight, element_energy, element_forces, element_tangents
 from .material import check_law, green_lagrange, stress
@@ -471,15 +471,7 @@ def internal_force_and_tangent(
         If shapes are inconsistent or the pattern was built for other elements.
     """
     elements, U = _check_state(geometry, elements, U, material)
-    if not isinstance(pattern, SparsityPattern):
-        raise ValueError(f"pattern must be a SparsityPattern, got {type(pattern).__name__}")
-    if pattern.n_dofs != 3 * U.shape[0] or pattern.n_elements != elements.shape[0]:
-        raise ValueError(
-            f"pattern is for {pattern.n_elements} elements / {pattern.n_dofs} dofs, got "
-            f"{elements.shape[0]} elements / {3 * U.shape[0]} dofs"
-        )
-    if not np.array_equal(pattern.dofs, element_dofs(elements)):
-        raise ValueError("pattern was built for a different connectivity than elements")
+    check_pattern(pattern, elements, U.shape[0])
     if not _plain_stvk(geometry, material):
         fe, Ke, min_det = element_tangents(geometry.grad, geometry.dvol, U[elements], material.model,
                                            material.lame_lambda, material.lame_mu, geometry.fbar_weight,
@@ -488,13 +480,10 @@ def internal_force_and_tangent(
     f_int, min_det = _stvk_force(geometry, elements, U, material)
     H, S = _stress_state(geometry, elements, U, material)
     n_elems, n_qp = geometry.dvol.shape
-
-    def per_point(A):  # component-major (3, 3, e q) -> (e, q, 3, 3)
-        return np.ascontiguousarray(A.reshape(3, 3, n_elems, n_qp).transpose(2, 3, 0, 1))
-
-    S_points = per_point(S)
+    # component-major (3, 3, e q) -> (e, q, 3, 3)
+    H_points, S_points = (np.ascontiguousarray(A.reshape(3, 3, n_elems, n_qp).transpose(2, 3, 0, 1)) for A in (H, S))
     if tension_only_geometric:
         lam, vec = np.linalg.eigh(S_points)
         S_points = np.einsum("eqij,eqj,eqkj->eqik", vec, np.maximum(lam, 0.0), vec)
-    K = assemble_matrix(pattern, _element_tangents(geometry, _I3 + per_point(H), S_points, material))
+    K = assemble_matrix(pattern, _element_tangents(geometry, _I3 + H_points, S_points, material))
     return f_int, K, min_det

@@ -310,19 +310,7 @@ def face_tributary_areas(mesh: BlockMesh, face_nodes) -> np.ndarray:
     quads = surface_quads(mesh)
     quads = quads[np.all(position[quads] >= 0, axis=1)]
 
-    g = 1.0 / np.sqrt(3.0)
-    s = np.array([-g, g])
-    xi, eta = (a.ravel() for a in np.meshgrid(s, s, indexing="ij"))  # (4,), unit weights
-    sx = np.array([-1.0, 1.0, 1.0, -1.0])
-    sy = np.array([-1.0, -1.0, 1.0, 1.0])
-    shape = 0.25 * (1 + sx[None, :] * xi[:, None]) * (1 + sy[None, :] * eta[:, None])  # (q, a)
-    dxi = 0.25 * sx[None, :] * (1 + sy[None, :] * eta[:, None])
-    deta = 0.25 * sy[None, :] * (1 + sx[None, :] * xi[:, None])
-    X = mesh.nodes[quads]  # (f, a, 3)
-    t1 = np.einsum("qa,fai->fqi", dxi, X)
-    t2 = np.einsum("qa,fai->fqi", deta, X)
-    jac = np.linalg.norm(np.cross(t1, t2), axis=-1)  # (f, q)
-    local = np.einsum("qa,fq->fa", shape, jac)
+    local = _quad_node_areas(mesh.nodes[quads])
 
     areas = np.bincount(position[quads].ravel(), weights=local.ravel(), minlength=face_nodes.size)
     covered = np.zeros(face_nodes.size, dtype=bool)
@@ -333,6 +321,23 @@ def face_tributary_areas(mesh: BlockMesh, face_nodes) -> np.ndarray:
             f"face_nodes {bad[:5].tolist()} lie on no boundary face made only of face_nodes"
         )
     return areas
+
+
+def _quad_node_areas(X: np.ndarray) -> np.ndarray:
+    """``int N_a dA`` of each node of bilinear quads ``X`` (n_faces, 4, 3), m, by 2x2 Gauss
+    with unit weights: ``sum_q N_a(xi_q, eta_q) |dX/dxi x dX/deta|_q``, shape (n_faces, 4), m^2."""
+    g = 1.0 / np.sqrt(3.0)
+    s = np.array([-g, g])
+    xi, eta = (a.ravel() for a in np.meshgrid(s, s, indexing="ij"))  # (4,), unit weights
+    sx = np.array([-1.0, 1.0, 1.0, -1.0])
+    sy = np.array([-1.0, -1.0, 1.0, 1.0])
+    shape = 0.25 * (1 + sx[None, :] * xi[:, None]) * (1 + sy[None, :] * eta[:, None])  # (q, a)
+    dxi = 0.25 * sx[None, :] * (1 + sy[None, :] * eta[:, None])
+    deta = 0.25 * sy[None, :] * (1 + sx[None, :] * xi[:, None])
+    t1 = np.einsum("qa,fai->fqi", dxi, X)
+    t2 = np.einsum("qa,fai->fqi", deta, X)
+    jac = np.linalg.norm(np.cross(t1, t2), axis=-1)  # (f, q)
+    return np.einsum("qa,fq->fa", shape, jac)
 
 
 def nested_dissection_parts(mesh: BlockMesh, leaf: int = 64) -> list[np.ndarray] | None:

@@ -221,6 +221,26 @@ def write_local_problem(
     ValueError
         Bad shapes, non-finite values, negative coefficients, or only one of ``r``, ``u``.
     """
+    q, Wc, mu_x, mu_y, angle, r, u = _checked_problem(W, q, mu_x, mu_y, angle, title, description, r, u)
+    D, mu_prime = _scaling(mu_x, mu_y)
+    d = D.ravel()
+    rows = np.repeat(np.arange(Wc.shape[0]), np.diff(Wc.indptr))
+    Ws = sp.csr_array(((d[rows] * Wc.data) * d[Wc.indices], Wc.indices, Wc.indptr), shape=Wc.shape)
+    scaled = bool(np.any(D != 1.0))
+    math_info = ("anisotropic problem scaled to isotropic form, r = D s, u' = D u; "
+                 f"D and the coefficients are in /{ANISOTROPY_GROUP}") if scaled else ""
+
+    def write(f: h5py.File) -> None:
+        _write_scaled(f, Ws, D, q, mu_prime, {"title": title, "description": description, "math_info": math_info},
+                      r, u)
+        _write_anisotropy(f.create_group(ANISOTROPY_GROUP), mu_x, mu_y, angle, D, Wc, q, r, u)
+
+    _atomic_write(Path(path), write)
+
+
+def _checked_problem(W, q, mu_x, mu_y, angle, title, description, r, u):
+    """:func:`write_local_problem`'s inputs checked and as float arrays: ``q`` (nc, 3),
+    ``W`` CSR (3 nc, 3 nc), ``mu_x``, ``mu_y``, ``angle`` (nc,), ``r``, ``u`` (nc, 3) or None."""
     q = _contact_array("q", q, None)
     nc = q.shape[0]
     if nc == 0:
@@ -236,33 +256,28 @@ def write_local_problem(
     for name, s in (("title", title), ("description", description)):
         if not isinstance(s, str):
             raise ValueError(f"{name} must be a str, got {type(s).__name__}")
+    return q, Wc, mu_x, mu_y, angle, r, u
 
-    D, mu_prime = _scaling(mu_x, mu_y)
-    d = D.ravel()
-    rows = np.repeat(np.arange(3 * nc), np.diff(Wc.indptr))
-    Ws = sp.csr_array(((d[rows] * Wc.data) * d[Wc.indices], Wc.indices, Wc.indptr), shape=Wc.shape)
-    scaled = bool(np.any(D != 1.0))
-    math_info = ("anisotropic problem scaled to isotropic form, r = D s, u' = D u; "
-                 f"D and the coefficients are in /{ANISOTROPY_GROUP}") if scaled else ""
 
-    def write(f: h5py.File) -> None:
-        loc = f.create_group("fclib_local")
-        _int_scalar(loc, "spacedim", 3)
-        _write_sparse_matrix(loc.create_group("W"), Ws)
-        vec = loc.create_group("vectors")
-        vec.create_dataset("q", data=(D * q).ravel())
-        vec.create_dataset("mu", data=mu_prime)
-        info = loc.create_group("info")
-        for name, text in (("title", title), ("description", description), ("math_info", math_info)):
-            _write_string(info, name, text)
-        if r is not None:
-            sol = f.create_group("solution")
-            s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
-            sol.create_dataset("r", data=s.ravel())
-            sol.create_dataset("u", data=(D * u).ravel())
-        _write_anisotropy(f.create_group(ANISOTROPY_GROUP), mu_x, mu_y, angle, D, Wc, q, r, u)
-
-    _atomic_write(Path(path), write)
+def _write_scaled(f: h5py.File, Ws: sp.csr_array, D: np.ndarray, q: np.ndarray, mu_prime: np.ndarray,
+                  info: dict[str, str], r, u) -> None:
+    """The FCLIB groups of the scaled problem: ``/fclib_local`` (``W' = D W D``, ``q' = D q``,
+    ``mu'``, the ``info`` strings) and, with a solution, ``/solution`` (``s = r / D``, ``u' = D u``;
+    ``s = 0`` where ``D`` is 0)."""
+    loc = f.create_group("fclib_local")
+    _int_scalar(loc, "spacedim", 3)
+    _write_sparse_matrix(loc.create_group("W"), Ws)
+    vec = loc.create_group("vectors")
+    vec.create_dataset("q", data=(D * q).ravel())
+    vec.create_dataset("mu", data=mu_prime)
+    group_info = loc.create_group("info")
+    for name, text in info.items():
+        _write_string(group_info, name, text)
+    if r is not None:
+        sol = f.create_group("solution")
+        s = np.where(D == 0.0, 0.0, r / np.where(D == 0.0, 1.0, D))
+        sol.create_dataset("r", data=s.ravel())
+        sol.create_dataset("u", data=(D * u).ravel())
 
 
 def _write_anisotropy(g: h5py.Group, mu_x, mu_y, angle, D, Wc, q, r, u) -> None:

@@ -141,7 +141,29 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
     """
     indptr = np.asarray(indptr, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
-    n_dofs = indptr.size - 1
+    order, elim, starts = _elimination_order(indptr.size - 1, free, parts, root)
+    pos, er, ec, bounds = _entries_by_part(indptr, indices, elim, starts)
+    boundary, fronts, source, target, parent, nnz, flops = _symbolic_parts(starts, pos, er, ec, bounds)
+    relative = tuple(
+        np.searchsorted(fronts[parent[s]], boundary[s]) if parent[s] >= 0 else np.zeros(0, dtype=np.int64)
+        for s in range(starts.size - 1)
+    )
+    free_position = np.searchsorted(free, order)
+    return SupernodalStructure(
+        perm=free_position, starts=starts, boundary=tuple(boundary), parent=parent, relative=relative,
+        source=tuple(source), target=tuple(target), nnz=int(nnz), max_front=max(f.size for f in fronts),
+        flops=float(flops),
+    )
+
+
+def _elimination_order(n_dofs: int, free: np.ndarray, parts, root):
+    """The elimination order of the free dofs: the parts' dofs, then the root's.
+
+    Returns ``order`` (n_free,) the dofs in elimination order, ``elim`` (n_dofs,) each
+    dof's elimination position (-1 for a fixed dof) and ``starts`` (n_parts + 1,) where
+    each part (the root the last) begins; raises ValueError if they do not cover ``free``
+    exactly once.
+    """
     parts = [np.asarray(p, dtype=np.int64) for p in parts if len(p)] + [np.asarray(root, dtype=np.int64)]
     order = np.concatenate(parts)
     if order.size != free.size or not np.array_equal(np.sort(order), free):
@@ -152,15 +174,21 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
     elim[order] = np.arange(order.size)
     starts = np.zeros(len(parts) + 1, dtype=np.int64)
     np.cumsum([p.size for p in parts], out=starts[1:])
+    return order, elim, starts
 
-    pos, er, ec, bounds = _entries_by_part(indptr, indices, elim, starts)
 
-    n_parts = len(parts)
+def _symbolic_parts(starts: np.ndarray, pos, er, ec, bounds):
+    """Per part, in elimination order: its boundary ``B`` (the later dofs its own entries
+    and its children's boundaries couple to), its front (its dofs then ``B``), the
+    assembly maps ``source`` / ``target`` and its parent (the part of ``B[0]``), with the
+    factor's entries ``nnz`` and flops ``p^3/3 + p^2 q + p q^2`` summed over the parts
+    (``p`` dofs, ``q`` boundary dofs). A loop over parts (about 2 n_nodes / 64), not dofs."""
+    n_parts = starts.size - 1
     boundary, fronts, source, target = [], [], [], []
     parent = np.full(n_parts, -1, dtype=np.int64)
     children: list[list[int]] = [[] for _ in range(n_parts)]
     nnz, flops = 0, 0.0
-    for s in range(n_parts):  # a loop over parts (about 2 n_nodes / 64), not over dofs
+    for s in range(n_parts):
         a, b = starts[s], starts[s + 1]
         lo, hi = bounds[s], bounds[s + 1]
         cols = ec[lo:hi]
@@ -178,16 +206,7 @@ def supernodal_structure(indptr, indices, free: np.ndarray, parts, root: np.ndar
         p, q = int(b - a), int(B.size)
         nnz += p * (p + 1) // 2 + p * q
         flops += p**3 / 3.0 + p * p * q + p * q * q
-    relative = tuple(
-        np.searchsorted(fronts[parent[s]], boundary[s]) if parent[s] >= 0 else np.zeros(0, dtype=np.int64)
-        for s in range(n_parts)
-    )
-    free_position = np.searchsorted(free, order)
-    return SupernodalStructure(
-        perm=free_position, starts=starts, boundary=tuple(boundary), parent=parent, relative=relative,
-        source=tuple(source), target=tuple(target), nnz=int(nnz), max_front=max(f.size for f in fronts),
-        flops=float(flops),
-    )
+    return boundary, fronts, source, target, parent, nnz, flops
 
 
 class SupernodalFactor:

@@ -61,7 +61,7 @@ def compliant_step(model: Model, state: State, command: Command, t0: float, loca
     p_prev = g_prev = None
     for trial in range(MAX_TRIALS):
         eq, report = _trial(model, state, trial_state, command, p, translation[2], t0, local_problem_hook,
-                            consume and trial == 0, held_step)
+                            consume and trial == 0)
         iterations += report.newton_iterations
         if not report.converged:
             return state, replace(report, newton_iterations=iterations)
@@ -84,7 +84,7 @@ def compliant_step(model: Model, state: State, command: Command, t0: float, loca
                           newton_iterations=iterations)
 
 
-def _trial(model, state, trial_state, command, p, tz, t0, hook, consume, held_step):
+def _trial(model, state, trial_state, command, p, tz, t0, hook, consume):
     """A displacement-driven step from ``state`` with the plate at in-plane
     pose ``p`` (3,) and height ``tz``, m; ``trial_state`` lends its cached tangent."""
     dp = p - state.plate

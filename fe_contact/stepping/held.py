@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fem.loads import NO_LOADING, Loading
+from .law_check import checked
 from .measure import measure
 from .model import Command, Model, State, StepReport, TangentCache
 from .newton import Equilibrium, equilibrium
@@ -30,7 +31,7 @@ def held_step(model: Model, state: State, command: Command, translation: np.ndar
     else:
         loading, gripper = pad_loading(model, state), (translation, pad_motion(model, state, translation, rotation))
     eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper)
-    return eq, measure(model, state, command, eq, t0, loading, extra)
+    return eq, checked(model, measure(model, state, command, eq, t0, loading, extra))
 
 
 def held_loading(model: Model) -> Loading:

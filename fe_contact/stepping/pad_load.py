@@ -44,6 +44,7 @@ import numpy as np
 
 from .command import Command, PadLoad
 from .held import pad_loading, pad_motion
+from .law_check import checked
 from .measure import measure
 from .model import Model, State
 from .newton import equilibrium
@@ -317,7 +318,7 @@ def load_step(model: Model, state: State, command, t0: float, local_problem_hook
     taken = Command(*(translation - state.upper_translation), c[2] - state.upper_rotation) \
         if isinstance(command, PadLoad) else command
     extra = None if drive.k is None else {"gripper_force": drive.k * (c - drive.plate), "plate": drive.plate.copy()}
-    report = measure(model, state, taken, eq, t0, loading, extra)
+    report = checked(model, measure(model, state, taken, eq, t0, loading, extra))
     return eq, report, translation, float(c[2]), drive.plate.copy()
 
 

@@ -241,44 +241,10 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
     t0 = time.perf_counter()
     noise = noise or NoiseModel()
     names = tuple(fit)
-    for k in names:
-        if k not in FIT_CHOICES:
-            raise InputError(f"--fit {k}: unknown parameter (choose from {', '.join(FIT_CHOICES)})")
-    if not any(o.columns for o in as_files(obs)):
-        raise InputError("observations: no observed column (lower_x, ..., force_z) to fit")
-    y, sigma = stacked(obs), noise.sigma(obs, scenario.size)
-    if y.size < len(names):
-        raise InputError(f"observations: {y.size} values cannot determine {len(names)} parameters")
+    y, sigma = _checked_values(scenario, obs, noise, names)
     predict = FePredictor(scenario, obs, names, exact=exact)
-    initial = np.array([getattr(scenario, k) for k in names], float)
-    start, used = initial.copy(), False
-    if {"mu_x", "mu_y", "angle_deg"} <= set(names):
-        guess = prefit(obs, [getattr(scenario, k) for k in ("mu_x", "mu_y", "angle_deg")], noise.pose_noise)
-        if guess is not None:
-            for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess, strict=True):
-                start[names.index(k)] = v
-            used = True
-    r_initial = _residual(predict, y, sigma, initial)
-    chi2_initial = float(r_initial @ r_initial)
-    r0 = _residual(predict, y, sigma, start)
-    if used and r0 @ r0 > chi2_initial:  # the reduced model misled (partial slip): start where the FE fits better
-        start, r0, used = initial.copy(), r_initial, False
-    J0 = _jacobian(predict, y, sigma, names, start, r0)
-    free = np.array(_flags(names, start, J0, obs, noise))
-    if not free.any():
-        free[:] = True
-    if not free.all():  # kept at the scenario's value: the prefit's value along them is arbitrary
-        start[~free] = initial[~free]
-        J0 = None
-        if log is not None:
-            log("  not identifiable at the start, kept at the scenario's value: "
-                + ", ".join(k for k, f in zip(names, free, strict=True) if not f))
-    theta, r, J, iterations, converged = levenberg_marquardt(predict, y, sigma, names, start, free, log, J0)
-    flags, reasons, cov, sd, undetermined = _assess(names, theta, J, obs, noise)
-    if not free.all() and any(f and not fr for f, fr in zip(flags, free, strict=True)):
-        free[:] = True
-        theta, r, J, more, converged = levenberg_marquardt(predict, y, sigma, names, theta, free, log, J)
-        iterations += more
+    initial, start, used, chi2_initial, r0 = _starting_point(scenario, obs, noise, names, predict, y, sigma)
+    theta, r, J, iterations, converged, free = _fit(predict, y, sigma, names, initial, start, r0, obs, noise, log)
     theta = _normalise_angle(names, theta, scenario.angle_deg)
     _, _, cov0, sd0, undetermined = _assess(names, theta, J, obs, noise)
     fitted_rollouts = predict.count
@@ -296,6 +262,65 @@ def identify(scenario: Scenario, obs, noise: NoiseModel | None = None, fit=DEFAU
         wall_time=time.perf_counter() - t0, prefit_used=used, sigma_linear=sd0, uncertainty=unc,
         exact_jacobian=predict.exact,
     )
+
+
+def _checked_values(scenario: Scenario, obs, noise: NoiseModel, names) -> tuple[np.ndarray, np.ndarray]:
+    """The stacked observed values ``y`` and their standard deviations ``sigma`` (n_values,),
+    after checking that ``names`` are parameters and the observations can determine them."""
+    for k in names:
+        if k not in FIT_CHOICES:
+            raise InputError(f"--fit {k}: unknown parameter (choose from {', '.join(FIT_CHOICES)})")
+    if not any(o.columns for o in as_files(obs)):
+        raise InputError("observations: no observed column (lower_x, ..., force_z) to fit")
+    y, sigma = stacked(obs), noise.sigma(obs, scenario.size)
+    if y.size < len(names):
+        raise InputError(f"observations: {y.size} values cannot determine {len(names)} parameters")
+    return y, sigma
+
+
+def _starting_point(scenario: Scenario, obs, noise: NoiseModel, names, predict, y, sigma):
+    """Where the fit starts: the reduced model's prefit of the friction when it fits the FE
+    better than the scenario's values, else those.  Returns the scenario's values, the
+    start, whether the prefit was used, the chi-square at the scenario's values and the
+    whitened residual at the start."""
+    initial = np.array([getattr(scenario, k) for k in names], float)
+    start, used = initial.copy(), False
+    if {"mu_x", "mu_y", "angle_deg"} <= set(names):
+        guess = prefit(obs, [getattr(scenario, k) for k in ("mu_x", "mu_y", "angle_deg")], noise.pose_noise)
+        if guess is not None:
+            for k, v in zip(("mu_x", "mu_y", "angle_deg"), guess, strict=True):
+                start[names.index(k)] = v
+            used = True
+    r_initial = _residual(predict, y, sigma, initial)
+    chi2_initial = float(r_initial @ r_initial)
+    r0 = _residual(predict, y, sigma, start)
+    if used and r0 @ r0 > chi2_initial:  # the reduced model misled (partial slip): start where the FE fits better
+        start, r0, used = initial.copy(), r_initial, False
+    return initial, start, used, chi2_initial, r0
+
+
+def _fit(predict, y, sigma, names, initial, start, r0, obs, noise: NoiseModel, log):
+    """Levenberg-Marquardt from ``start`` on the parameters identifiable there (the others
+    kept at the scenario's value, written into ``start``), then on all of them if the fit
+    made another identifiable.  Returns ``theta, r, J, iterations, converged`` and the mask of
+    the parameters fitted last."""
+    J0 = _jacobian(predict, y, sigma, names, start, r0)
+    free = np.array(_flags(names, start, J0, obs, noise))
+    if not free.any():
+        free[:] = True
+    if not free.all():  # kept at the scenario's value: the prefit's value along them is arbitrary
+        start[~free] = initial[~free]
+        J0 = None
+        if log is not None:
+            log("  not identifiable at the start, kept at the scenario's value: "
+                + ", ".join(k for k, f in zip(names, free, strict=True) if not f))
+    theta, r, J, iterations, converged = levenberg_marquardt(predict, y, sigma, names, start, free, log, J0)
+    flags, _, _, _, _ = _assess(names, theta, J, obs, noise)
+    if not free.all() and any(f and not fr for f, fr in zip(flags, free, strict=True)):
+        free[:] = True
+        theta, r, J, more, converged = levenberg_marquardt(predict, y, sigma, names, theta, free, log, J)
+        iterations += more
+    return theta, r, J, iterations, converged, free
 
 
 def _uncertainty(scenario, obs, names, theta, J, r, y, sigma, cov0, check, predict, model_error) -> Uncertainty:
