@@ -263,7 +263,9 @@ def main(argv=None) -> int:
     server = subprocess.Popen([sys.executable, "-m", "pushplan.cli", "serve", "--address", "127.0.0.1:0",
                                "--root", str(SCENARIO.parent), "--max-sessions", str(max(args.clients, 2))],
                               stdout=subprocess.PIPE, text=True)
-    doc = {"scenario": SCENARIO.name, "mesh": "planning 6 x 6 x 2, quadrature 2",
+    from _common import machine_info
+
+    doc = {"machine": machine_info(), "scenario": SCENARIO.name, "mesh": "planning 6 x 6 x 2, quadrature 2",
            "server": "pushplan serve, its own process; the client this process", "cores": os.cpu_count()}
     try:
         address = server.stdout.readline().split("listening on ")[1].strip()
