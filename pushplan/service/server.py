@@ -212,11 +212,15 @@ class Planner:
             if reply is None:
                 raise _Abort(grpc.StatusCode.DEADLINE_EXCEEDED, f"session {session.id}: no answer within {limit:.3g} s,"
                              " session closed")
-            raise _Abort(grpc.StatusCode.INTERNAL, f"session {session.id}: its process ended "
-                         f"(exit code {session.process.exitcode}), session closed")
+            raise self._ended(session)
         if reply[0] == "ok":
             return reply[1]
         raise _Abort(STATUS_OF[reply[1]], reply[2])
+
+    def _ended(self, session: _Session) -> _Abort:
+        """The error of a call on a session whose process ended (already dropped)."""
+        return _Abort(grpc.StatusCode.INTERNAL, f"session {session.id}: its process ended "
+                      f"(exit code {session.process.exitcode}), session closed")
 
     def _drop(self, session: _Session) -> None:
         with self._lock:
@@ -241,7 +245,11 @@ class Planner:
             if session.id not in self.sessions:
                 raise _Abort(grpc.StatusCode.NOT_FOUND, f"session: {session.id!r} was closed")
             session.last_used = time.monotonic()
-            session.conn.send((op, request))
+            try:
+                session.conn.send((op, request))
+            except (OSError, ValueError):  # the process ended and its end of the pipe is closed
+                self._drop(session)
+                raise self._ended(session) from None
             return self._receive(session, self.limits.call_timeout, context)
         finally:
             session.last_used = time.monotonic()
