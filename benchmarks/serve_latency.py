@@ -1,19 +1,35 @@
-"""Latency of ``pushplan serve`` measured from a client process (issue 41), and isolation of
-sessions under load.
+"""Latency of ``pushplan serve`` from a client process against the same work in that
+process, at the same load, in one run (issue 41).
 
 The server runs as its own process (``pushplan serve --address 127.0.0.1:0``); this process
-is the client.  On ``plan_rubber`` (planning mesh 6 x 6 x 2, session without the
-verification mesh, as ``closed-loop`` re-plans): ``Open`` (``--opens`` calls), ``Plan``,
-a warm ``Replan`` after one executed push and a ``Rollout`` of 3 pushes (``--calls`` each):
-median and p99 of the client's wall time.  The rollout is compared with the same rollout
-in this process (``FeRollouts`` on the same mesh, same start state).  The server's CPU
-(its process tree, user + system) over ``--idle`` s with an open session and no call.
-Then ``--clients`` client processes, each its own session, each ``--replans`` re-plans
-with its own observations at once; every answer is compared with the same sequence run
-by one client alone.
+is the client.  The case is ``plan_rubber`` on its planning mesh (6 x 6 x 2, sessions
+without the verification mesh):
 
-Writes benchmarks/results/serve_latency.json (every figure, the load average before and
-after).  ``--quick`` for a smoke run.
+- **the closed loop**, ``--loops`` times at most (no new loop after ``--loop-budget`` s): ``Open``, ``Plan``, then the loop's 5 warm
+  re-plans (``Replan``, ``closed_loop=True``, as ``pushplan closed-loop`` re-plans) on the
+  observations of a truth with 0.8 times the model's friction on the verification mesh
+  12 x 12 x 4 (the truth of ``benchmarks/replan_warm.py``, the issue's 35 ms; run once before
+  the timing: the answers are deterministic, and every loop's are checked equal).  Unlike
+  ``closed-loop``, whose first plan is verified on both meshes, the sessions plan on the
+  planning mesh alone, so the re-plans follow that first plan.
+  Each loop through the service is followed by the same loop in this process
+  (:class:`pushplan.service.worker.SessionState`, the session's own code without the wire),
+  so both see the same load: per call, overhead = service time - in-process time;
+- **rollouts** of 3 pushes from the press, ``--calls`` times at most (none started after
+  ``--rollout-budget`` s), alternating service and in-process;
+- a session's ``Info`` round trip, ``--calls`` times: the wire with no work behind it;
+- the server's CPU (its process tree, user + system) over ``--idle`` s with an open session
+  and no call (idle = 0);
+- **isolation**: ``--clients`` client processes at once, each its own session, a plan and
+  ``--replans`` re-plans of the last push with its own observation; every answer equal to the
+  same sequence run by one client alone.
+
+Each service answer carries ``server_s`` (the server's handler) and ``session_s`` /
+``session_cpu_s`` (the session's process): the wire, client time - ``session_s`` of the same
+call, splits into client <-> server (gRPC, JSON) and server <-> session (the pipe).  Under
+load the paired difference service - in process is noisy (each call waits for a core its own
+way); the wire is measured within one call.  Medians and p99 in s; the load average before and after.  Writes
+benchmarks/results/serve_latency.json.  ``--quick`` for a smoke run.
 """
 
 from __future__ import annotations
@@ -22,9 +38,11 @@ import argparse
 import json
 import multiprocessing
 import os
+import resource
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -32,25 +50,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "pushplan" / "scenarios" / "plan_rubber.toml"
 COMMANDS = [[0.5e-3, 0.25e-3, 0.0]] * 3
+TRUTH_FRICTION = 0.8
 
 
 def _stats(times) -> dict:
-    t = np.asarray(times)
+    t = np.asarray(times, float)
     return {"calls": len(t), "median_s": float(np.median(t)), "p99_s": float(np.percentile(t, 99)),
             "max_s": float(t.max()), "min_s": float(t.min())}
 
 
-def _timed(fn, n: int) -> tuple[list[float], object]:
-    times, out = [], None
-    for _ in range(n):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return times, out
-
-
 def _tree_cpu(pid: int) -> float:
-    """User + system CPU seconds of ``pid`` and its descendants (from /proc)."""
+    """User + system CPU seconds of ``pid`` and its descendants, the ended ones they waited
+    for included (from /proc)."""
     parent, cpu = {}, {}
     tick = os.sysconf("SC_CLK_TCK")
     for d in Path("/proc").iterdir():
@@ -61,7 +72,7 @@ def _tree_cpu(pid: int) -> float:
         except OSError:
             continue
         parent[int(d.name)] = int(fields[1])
-        cpu[int(d.name)] = (int(fields[11]) + int(fields[12])) / tick
+        cpu[int(d.name)] = sum(int(f) for f in fields[11:15]) / tick
     tree, grew = {pid}, True
     while grew:
         new = {p for p, pp in parent.items() if pp in tree} - tree
@@ -70,112 +81,245 @@ def _tree_cpu(pid: int) -> float:
     return sum(cpu.get(p, 0.0) for p in tree)
 
 
-def _observation(first: dict, i: int) -> list[float]:
-    """Client ``i``'s observed pose after the first push: the plan's own pose there, off by
-    ``i`` um in x and y (as a truth on other friction would be)."""
-    x, y, yaw = first["poses"][1]
-    return [x + 1e-6 * i, y - 1e-6 * i, yaw]
+def _truth_pose(model, state, command) -> tuple:
+    """One push on the truth: (state after it, lower-face pose (x, y, yaw) from rest)."""
+    from fe_contact import Command
+    from pushplan.run import drive
+
+    run = drive(model, [Command(command[0], command[1], 0.0, command[2])], state)
+    s = run.summary.steps[-1]
+    return run.state, [s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw]
 
 
-def _client_run(address: str, i: int, replans: int) -> list:
-    """One client's session: plan, then ``replans`` re-plans after the first push with
-    observation ``i``; returns every answer's commands."""
+def closed_loop_requests(text: str) -> tuple[list[dict], list]:
+    """The closed loop once in this process: the ``Replan`` requests (executed pushes and the
+    truth's observed pose after them) and every answer's commands."""
+    from pushplan.config import parse_scenario
+    from pushplan.config.plan import press_commands
+    from pushplan.run import drive
+    from pushplan.service.worker import SessionState
+
+    data = tomllib.loads(text)
+    data["friction"] = {**data["friction"], "mu_x": data["friction"]["mu_x"] * TRUTH_FRICTION,
+                        "mu_y": data["friction"]["mu_y"] * TRUTH_FRICTION}
+    truth_sc = parse_scenario(data, name="truth")
+    truth = truth_sc.model()
+    state = drive(truth, press_commands(truth_sc)).state
+    session = SessionState(text, SCENARIO.stem, verify=False)
+    answer = session.plan({})
+    requests, answers, executed = [], [answer["commands"]], []
+    for _ in range(session.spec.steps - 1):
+        executed.append(answer["commands"][0])
+        state, observed = _truth_pose(truth, state, executed[-1])
+        requests.append({"executed": list(executed), "observed": observed, "closed_loop": True})
+        answer = session.replan(requests[-1])
+        answers.append(answer["commands"])
+    return requests, answers
+
+
+def _service_loop(client, requests: list[dict]) -> dict:
+    """One closed loop through the service: wall times, the answers' timing fields, commands."""
+    t0 = time.perf_counter()
+    s = client.open(scenario_path=str(SCENARIO), verify=False)
+    out = {"open": time.perf_counter() - t0, "replan": [], "parts": [], "commands": []}
+    t0 = time.perf_counter()
+    answer = s.plan()
+    out["plan"] = time.perf_counter() - t0
+    out["commands"].append(answer["commands"])
+    for r in requests:
+        t0 = time.perf_counter()
+        answer = s.replan(r["executed"], r["observed"], closed_loop=True)
+        out["replan"].append(time.perf_counter() - t0)
+        out["parts"].append((answer["server_s"], answer["session_s"], answer["session_cpu_s"], answer["wall_time_s"]))
+        out["commands"].append(answer["commands"])
+    s.close()
+    return out
+
+
+def _local_loop(text: str, requests: list[dict]) -> dict:
+    """The same loop in this process: the session's code, no wire."""
+    from pushplan.service.worker import SessionState
+
+    t0 = time.perf_counter()
+    s = SessionState(text, SCENARIO.stem, verify=False)
+    out = {"open": time.perf_counter() - t0, "replan": [], "cpu": []}
+    t0 = time.perf_counter()
+    s.plan({})
+    out["plan"] = time.perf_counter() - t0
+    for r in requests:
+        t0, c0 = time.perf_counter(), time.process_time()
+        s.replan(r)
+        out["replan"].append(time.perf_counter() - t0)
+        out["cpu"].append(time.process_time() - c0)
+    return out
+
+
+def measure_loops(address: str, text: str, loops: int, budget: float) -> dict:
+    """``loops`` closed loops each way, alternating; no new loop once ``budget`` s have passed."""
     from pushplan.client import Client
 
+    requests, reference = closed_loop_requests(text)
+    service, local, t0 = [], [], time.perf_counter()
+    with Client(address, timeout=600.0) as c:
+        while len(service) < loops and (not service or time.perf_counter() - t0 < budget):
+            service.append(_service_loop(c, requests))
+            local.append(_local_loop(text, requests))
+    same = all(run["commands"] == reference for run in service)
+    replan_s = np.array([x for run in service for x in run["replan"]])
+    replan_l = np.array([x for run in local for x in run["replan"]])
+    parts = np.array([p for run in service for p in run["parts"]])  # server, session, session cpu, solve
+    overhead = replan_s - replan_l
+    return {
+        "loops": len(service), "loops_asked": loops, "loop_budget_s": budget,
+        "replans_per_loop": len(requests), "answers_equal_to_the_first_loop": same,
+        "open": _stats([r["open"] for r in service]), "open_in_process": _stats([r["open"] for r in local]),
+        "plan": _stats([r["plan"] for r in service]), "plan_in_process": _stats([r["plan"] for r in local]),
+        "warm_replan": _stats(replan_s), "warm_replan_in_process": _stats(replan_l),
+        "warm_replan_in_process_cpu": _stats([x for run in local for x in run["cpu"]]),
+        "warm_replan_session_cpu": _stats(parts[:, 2]),
+        "warm_replan_overhead": _stats(overhead),
+        "warm_replan_wire": _stats(replan_s - parts[:, 1]),
+        "warm_replan_ratio_median": float(np.median(replan_s) / np.median(replan_l)),
+        "warm_replan_wire_parts_median_s": {
+            "client_and_grpc_json": float(np.median(replan_s - parts[:, 0])),
+            "server_to_session_pipe": float(np.median(parts[:, 0] - parts[:, 1]))},
+    }
+
+
+def measure_rollouts(address: str, text: str, calls: int, budget: float) -> dict:
+    """``calls`` rollouts each way, alternating; none started once ``budget`` s have passed."""
+    from pushplan.client import Client
+    from pushplan.service.worker import SessionState
+
+    local = SessionState(text, SCENARIO.stem, verify=False)
+    service, here, session = [], [], []
     with Client(address, timeout=600.0) as c:
         s = c.open(scenario_path=str(SCENARIO), verify=False)
-        first = s.plan()
-        answers = [first["commands"]]
+        t_start = time.perf_counter()
+        while len(service) < calls and (not service or time.perf_counter() - t_start < budget):
+            t0 = time.perf_counter()
+            a = s.rollout(COMMANDS)
+            service.append(time.perf_counter() - t0)
+            session.append(a["session_s"])
+            t0 = time.perf_counter()
+            b = local.rollout({"commands": COMMANDS})
+            here.append(time.perf_counter() - t0)
+        s.close()
+    return {"rollout_budget_s": budget, "rollout_3_pushes_6x6x2": _stats(service), "rollout_in_process": _stats(here),
+            "rollout_overhead": _stats(np.array(service) - np.array(here)),
+            "rollout_wire": _stats(np.array(service) - np.array(session)),
+            "rollout_ratio_median": float(np.median(service) / np.median(here)),
+            "rollout_answers_equal": a["poses"] == b["poses"]}
+
+
+def _client_run(address: str, requests: list[dict], i: int, replans: int) -> list:
+    """One client's session: plan, the loop's pushes but the last, then ``replans`` re-plans
+    of the last push with observation ``i`` (its own: x and y off by ``i`` um)."""
+    from pushplan.client import Client
+
+    last = requests[-1]
+    observed = [last["observed"][0] + 1e-6 * i, last["observed"][1] - 1e-6 * i, last["observed"][2]]
+    with Client(address, timeout=600.0) as c:
+        s = c.open(scenario_path=str(SCENARIO), verify=False)
+        answers = [s.plan()["commands"]]
         for _ in range(replans):
-            answers.append(s.replan([first["commands"][0]], _observation(first, i))["commands"])
+            answers.append(s.replan(last["executed"], observed)["commands"])
         s.close()
     return answers
 
 
-def _in_process(n: int) -> tuple[list[float], list[float]]:
-    """The same warm re-plans and rollouts in this process (a PlanSession of the planning
-    mesh, as the server's): their wall times."""
-    from pushplan.config import load_scenario
-    from pushplan.config.commands import planar_commands
-    from pushplan.config.plan import parse_plan
-    from pushplan.planning.planner import PlanSession
-    from pushplan.planning.replan import Start, remaining_spec
-
-    sc = load_scenario(SCENARIO)
-    spec = parse_plan(sc)
-    session = PlanSession(sc, spec, verify=False)
-    first = session.plan(spec, baseline=False)
-    executed = planar_commands(first.commands[:1])
-    start = Start(executed, np.array(_observation({"poses": first.verified.lower.tolist()}, 0)))
-    session.continue_from(executed)
-    replans = _timed(lambda: session.plan(remaining_spec(spec, start), baseline=False), n)[0]
-    rollouts = _timed(lambda: session.coarse.rollout(np.array(COMMANDS), release=False), n)[0]
-    return replans, rollouts
+def measure_isolation(address: str, text: str, clients: int, replans: int) -> dict:
+    requests, _ = closed_loop_requests(text)
+    singles = [_client_run(address, requests, i, replans) for i in range(clients)]
+    t0 = time.perf_counter()
+    with multiprocessing.get_context("spawn").Pool(clients) as pool:
+        together = pool.starmap(_client_run, [(address, requests, i, replans) for i in range(clients)])
+    wall = time.perf_counter() - t0
+    diff = max(float(np.max(np.abs(np.array(a) - np.array(b)))) for x, y in zip(singles, together, strict=True)
+               for a, b in zip(x, y, strict=True))
+    return {"clients": clients, "replans_each": replans, "wall_s": wall,
+            "max_abs_difference_from_single_client_m": diff,
+            "distinct_final_answers": len({json.dumps(x[-1]) for x in together}), "all_equal": diff == 0.0}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--calls", type=int, default=200)
-    ap.add_argument("--opens", type=int, default=10)
+    ap.add_argument("--loops", type=int, default=40, help="closed loops (5 re-plans each) per path, at most")
+    ap.add_argument("--loop-budget", type=float, default=90.0, help="s after which no new loop starts")
+    ap.add_argument("--calls", type=int, default=200, help="rollouts per path, at most")
+    ap.add_argument("--rollout-budget", type=float, default=20.0, help="s after which no new rollout starts")
     ap.add_argument("--idle", type=float, default=5.0)
     ap.add_argument("--clients", type=int, default=8)
     ap.add_argument("--replans", type=int, default=50)
-    ap.add_argument("--quick", action="store_true", help="20 calls, 2 opens, 2 clients x 3 re-plans")
+    ap.add_argument("--quick", action="store_true", help="3 loops, 20 rollouts, 2 clients x 3 re-plans")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "serve_latency.json"))
     args = ap.parse_args(argv)
     if args.quick:
-        args.calls, args.opens, args.idle, args.clients, args.replans = 20, 2, 1.0, 2, 3
+        args.loops, args.calls, args.idle, args.clients, args.replans = 3, 20, 1.0, 2, 3
     from pushplan.client import Client
 
-    load_before = os.getloadavg()
+    t_start, load_before = time.perf_counter(), os.getloadavg()
+    text = SCENARIO.read_text()
     server = subprocess.Popen([sys.executable, "-m", "pushplan.cli", "serve", "--address", "127.0.0.1:0",
                                "--root", str(SCENARIO.parent), "--max-sessions", str(max(args.clients, 2))],
                               stdout=subprocess.PIPE, text=True)
+    from _common import machine_info
+
+    doc = {"machine": machine_info(), "scenario": SCENARIO.name, "mesh": "planning 6 x 6 x 2, quadrature 2",
+           "server": "pushplan serve, its own process; the client this process", "cores": os.cpu_count()}
     try:
         address = server.stdout.readline().split("listening on ")[1].strip()
-        doc = {"scenario": SCENARIO.name, "server": "pushplan serve, its own process; the client this process",
-               "cores": os.cpu_count()}
-        with Client(address, timeout=600.0) as c:
-            opens = []
-            for _ in range(args.opens):
-                t0 = time.perf_counter()
-                s = c.open(scenario_path=str(SCENARIO), verify=False)
-                opens.append(time.perf_counter() - t0)
-                s.close()
+        doc |= measure_loops(address, text, args.loops, args.loop_budget)
+        doc |= measure_rollouts(address, text, args.calls, args.rollout_budget)
+        with Client(address) as c:
             s = c.open(scenario_path=str(SCENARIO), verify=False)
-            plans, first = _timed(s.plan, args.calls)
-            replans, _ = _timed(lambda: s.replan([first["commands"][0]], _observation(first, 0)), args.calls)
-            rollouts, _ = _timed(lambda: s.rollout(COMMANDS), args.calls)
+            trips = []
+            for _ in range(args.calls):  # the wire alone: a session's Info does no work
+                t0 = time.perf_counter()
+                s.state()
+                trips.append(time.perf_counter() - t0)
+            doc["session_info_round_trip"] = _stats(trips)
             cpu0, t0 = _tree_cpu(server.pid), time.perf_counter()
-            time.sleep(args.idle)
-            idle_cpu = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
+            time.sleep(args.idle)  # the measured interval itself: the server's CPU while nobody calls
+            doc["server_idle_cpu_s_per_s"] = (_tree_cpu(server.pid) - cpu0) / (time.perf_counter() - t0)
+            doc["server_idle_resolution_s_per_s"] = 1.0 / os.sysconf("SC_CLK_TCK") / args.idle  # one clock tick
             s.close()
-        local_replans, local = _in_process(args.calls)
-        doc |= {"open": _stats(opens), "plan": _stats(plans), "warm_replan": _stats(replans),
-                "warm_replan_in_process": _stats(local_replans),
-                "replan_ratio_median": float(np.median(replans) / np.median(local_replans)),
-                "rollout_3_pushes_6x6x2": _stats(rollouts), "rollout_in_process": _stats(local),
-                "rollout_ratio_median": float(np.median(rollouts) / np.median(local)),
-                "server_idle_cpu_s_per_s": idle_cpu}
-        singles = [_client_run(address, i, args.replans) for i in range(args.clients)]
-        t0 = time.perf_counter()
-        with multiprocessing.get_context("spawn").Pool(args.clients) as pool:
-            together = pool.starmap(_client_run, [(address, i, args.replans) for i in range(args.clients)])
-        wall = time.perf_counter() - t0
-        diff = max(float(np.max(np.abs(np.array(a) - np.array(b)))) for x, y in zip(singles, together, strict=True)
-                   for a, b in zip(x, y, strict=True))
-        distinct = len({json.dumps(x[-1]) for x in together})
-        doc["isolation"] = {"clients": args.clients, "replans_each": args.replans, "wall_s": wall,
-                            "max_abs_difference_from_single_client_m": diff,
-                            "distinct_final_answers": distinct, "all_equal": diff == 0.0}
+        doc["isolation"] = measure_isolation(address, text, args.clients, args.replans)
+        # the CPU the whole run took (at idle on 2 cores its wall time is about half of it)
+        own = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        doc["cpu_s"] = {"client_and_its_children": sum(r.ru_utime + r.ru_stime for r in own),
+                        "server_tree": _tree_cpu(server.pid)}
     finally:
         server.terminate()
         doc["server_exit"] = server.wait(60)
     doc["load_average_before"], doc["load_average_after"] = load_before, os.getloadavg()
+    doc["benchmark_wall_s"] = time.perf_counter() - t_start
     print(json.dumps(doc, indent=1))
+    _summary(doc)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1) + "\n")
     return 0
+
+
+def _summary(doc: dict) -> None:
+    ms = 1e3
+    for key in ("open", "plan", "warm_replan", "rollout_3_pushes_6x6x2"):
+        here = "rollout_in_process" if key.startswith("rollout") else f"{key}_in_process"
+        a, b = doc[key], doc[here]
+        print(f"{key:>24}: service {a['median_s'] * ms:8.1f} / {a['p99_s'] * ms:8.1f} ms (median / p99 of {a['calls']}),"
+              f" in process {b['median_s'] * ms:8.1f} / {b['p99_s'] * ms:8.1f} ms")
+    o, w, parts = doc["warm_replan_overhead"], doc["warm_replan_wire"], doc["warm_replan_wire_parts_median_s"]
+    print(f"warm re-plan: service - in process per call (pairs) median {o['median_s'] * ms:.2f} ms, p99 "
+          f"{o['p99_s'] * ms:.2f} ms; the wire (client time - session time, same call) median {w['median_s'] * ms:.2f} ms,"
+          f" p99 {w['p99_s'] * ms:.2f} ms: " + ", ".join(f"{k} {v * ms:.2f} ms" for k, v in parts.items()))
+    print(f"rollout: the wire median {doc['rollout_wire']['median_s'] * ms:.2f} ms, p99 "
+          f"{doc['rollout_wire']['p99_s'] * ms:.2f} ms; a session's Info (no work) round trip median "
+          f"{doc['session_info_round_trip']['median_s'] * ms:.2f} ms, p99 {doc['session_info_round_trip']['p99_s'] * ms:.2f} ms")
+    print(f"rollout ratio {doc['rollout_ratio_median']:.3f}, re-plan ratio {doc['warm_replan_ratio_median']:.3f}; "
+          f"server idle CPU {doc['server_idle_cpu_s_per_s']:.4f} s/s; isolation all equal "
+          f"{doc['isolation']['all_equal']}; load average {doc['load_average_before'][0]:.1f} -> "
+          f"{doc['load_average_after'][0]:.1f} on {doc['cores']} cores; {doc['benchmark_wall_s']:.0f} s wall, CPU "
+          f"{doc['cpu_s']['client_and_its_children']:.0f} s client + {doc['cpu_s']['server_tree']:.0f} s server")
 
 
 if __name__ == "__main__":

@@ -93,13 +93,16 @@ class Session:
                           baseline=baseline)
 
     def replan(self, executed, observed, force=None, time: float | None = None, target=None,
-               tolerance: float | None = None) -> dict:
+               tolerance: float | None = None, closed_loop: bool = False) -> dict:
         """Report the pushes executed after the press (rows ``(dx, dy, dtheta)``) and the
         lower-face pose observed after them (``(x, y, yaw)``; force N, time s, kept), and
-        re-plan the remaining steps warm.  Poses of the answer are relative to ``observed``."""
+        re-plan the remaining steps warm.  Poses of the answer are relative to ``observed``.
+        ``closed_loop``: re-plan as ``pushplan closed-loop`` does (the target shifted by the
+        model's error since the last plan, a quarter of the tolerances, the planning mesh)."""
         return self._call("Replan", executed=[list(map(float, c)) for c in executed],
                           observed=list(map(float, observed)), force=force, time=time,
-                          target=None if target is None else list(target), tolerance=tolerance)
+                          target=None if target is None else list(target), tolerance=tolerance,
+                          closed_loop=closed_loop or None)
 
     def rollout(self, commands, jacobian: bool = False, mesh: str = "planning", release: bool = False) -> dict:
         """Roll ``commands`` out from the session's current state: ``poses`` (K + 1, 3) and,

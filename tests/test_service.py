@@ -100,6 +100,19 @@ def test_warm_replans_through_the_service_equal_the_in_process_session(client, r
     for got, want in zip(_loop(s, answer), replans, strict=True):
         np.testing.assert_allclose(got["commands"], want.commands, rtol=0, atol=1e-15)
         np.testing.assert_allclose(got["poses"], want.verified.lower, rtol=0, atol=1e-15)
+        # where the time went: the planner's inside the session's, the session's inside the server's
+        assert 0 < got["wall_time_s"] <= got["session_s"] <= got["server_s"] and got["session_cpu_s"] > 0
+    s.close()
+
+
+def test_a_closed_loop_replan_needs_a_plan_to_follow_and_leaves_the_session_as_it_was(client):
+    s = client.open(SCENARIO, verify=False)
+    code, msg = _code(lambda: s.replan([PUSHES[0]], OBSERVED[0], closed_loop=True))
+    assert code == "INVALID_ARGUMENT" and "closed_loop" in msg and s.state()["executed"] == 0
+    first = s.plan()
+    code, msg = _code(lambda: s.replan([], OBSERVED[0], closed_loop=True))
+    assert code == "INVALID_ARGUMENT" and "pushes since the last plan" in msg and s.state()["executed"] == 0
+    assert s.replan([first["commands"][0]], OBSERVED[0], closed_loop=True)["status"]
     s.close()
 
 
@@ -227,15 +240,20 @@ def test_request_and_session_caps(server, client):
     _works(client)
 
 
-def test_a_dead_session_process_does_not_touch_another(server, client):
+@pytest.mark.parametrize("reaped", [False, True], ids=["killed", "killed-and-gone"])
+def test_a_dead_session_process_does_not_touch_another(server, client, reaped):
     a, b = client.open(SCENARIO, verify=False), client.open(SCENARIO, verify=False)
-    before = b.rollout(PUSHES)["poses"]
-    os.kill(a.info["pid"], signal.SIGKILL)
-    code, msg = _code(a.plan)
-    assert code == "INTERNAL" and "process ended" in msg
-    assert _code(a.plan)[0] == "NOT_FOUND"
-    assert b.rollout(PUSHES)["poses"] == before
-    b.close()
+    try:
+        before = b.rollout(PUSHES)["poses"]
+        os.kill(a.info["pid"], signal.SIGKILL)
+        if reaped:  # its end of the pipe closed before the call: the request cannot be sent
+            server.planner.sessions[a.id].process.join(60)
+        code, msg = _code(a.plan)
+        assert code == "INTERNAL" and "process ended" in msg
+        assert _code(a.plan)[0] == "NOT_FOUND"
+        assert b.rollout(PUSHES)["poses"] == before
+    finally:
+        b.close()
     _works(client)
 
 

@@ -20,8 +20,6 @@ SPLIT_ELSEWHERE = {
     "fe_contact/stepping/measure.py:measure",
     "fe_contact/stepping/derivatives.py:rollout_derivatives",
     "fe_contact/stepping/derivatives.py:check_derivatives",
-    "pushplan/outputs/recording.py:__init__",
-    "pushplan/planning/nlp.py:__init__",
 }
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
 LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "drake", "studies", "service",

@@ -8,10 +8,15 @@ unreadable token file, a ``--root`` that is not a folder.
 
 from __future__ import annotations
 
+import select
 import signal
+import socket
 import threading
 
 from ..errors import InputError
+
+SIGNAL_BACKSTOP = 5.0
+"""s between wake-ups of the waiting main thread should a signal's wake-up byte be lost."""
 
 
 def _token(path) -> str | None:
@@ -39,13 +44,22 @@ def cmd_serve(args) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    # the signal may be delivered to one of gRPC's threads, and Python runs its handler only in
+    # the main thread once that thread wakes: the C-level handler, in whichever thread, writes
+    # the signal's number to the wakeup socket, which wakes the main thread's select (no polling;
+    # the timeout is a backstop, one wake-up in SIGNAL_BACKSTOP s)
+    wake, woken = socket.socketpair()
+    wake.setblocking(False)
+    previous = signal.set_wakeup_fd(wake.fileno(), warn_on_full_buffer=False)
     print(f"pushplan serve: listening on {server.address}", flush=True)
     try:
-        # a timed wait: the signal may be delivered to one of gRPC's threads, and Python runs its
-        # handler only in the main thread once that thread wakes (an untimed wait could sleep on)
-        while not stop.wait(0.2):
-            pass
+        while not stop.is_set():
+            if select.select([woken], [], [], SIGNAL_BACKSTOP)[0]:
+                woken.recv(64)
     finally:
+        signal.set_wakeup_fd(previous)
+        wake.close()
+        woken.close()
         server.stop()
     print("pushplan serve: stopped, sessions closed", flush=True)
     return 0

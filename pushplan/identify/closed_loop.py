@@ -162,7 +162,7 @@ def modifier(spec: PlanSpec, bias: np.ndarray, drift: np.ndarray, springback: np
     return (1.0 - s) * bias - s * drift
 
 
-def _shifted(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
+def shifted_spec(spec: PlanSpec, shift: np.ndarray) -> PlanSpec:
     """``spec`` aiming at ``target - shift`` (:func:`modifier`), within
     :data:`REPLAN_TOLERANCE` of the tolerances."""
     mask = np.array([1.0, 1.0, float(spec.yaw_targeted)])
@@ -239,7 +239,7 @@ def _replan(model_sc, spec, truth, k, opts: LoopOptions, shift, session):
                                                         for n, v in zip(est.names, est.estimate, strict=True)))
     # the loop never reads the naive rollout: no baseline
     # warm in the session; cold with identification (another model each push)
-    replan_spec = _shifted(spec, shift)
+    replan_spec = shifted_spec(spec, shift)
     result, start = replan(model_sc, replan_spec, obs, baseline=False, session=session)
     if opts.robust and est is not None:
         result, robust = _robust(model_sc, est, spec, replan_spec, result, start, opts)

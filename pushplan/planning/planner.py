@@ -183,9 +183,11 @@ class PlanSession:
         solution, modifier, n = self._last
         return dataclasses.replace(solution, variables={k: v[:, n:] for k, v in solution.variables.items()}), modifier
 
-    def plan(self, spec: PlanSpec | None = None, baseline: bool = True) -> PlanResult:
+    def plan(self, spec: PlanSpec | None = None, baseline: bool = True, verify: bool = True) -> PlanResult:
         """Plan ``spec`` (default the session's; a re-plan: the remaining steps, target
-        relative to the current pose) from the current state; see :func:`plan`."""
+        relative to the current pose) from the current state; see :func:`plan`.
+        ``verify=False`` corrects and scores on the planning mesh alone in a session that
+        also holds the verification mesh (as ``closed-loop``'s re-plans)."""
         t_start = time.perf_counter()
         spec = spec or self.spec
         timings = dict.fromkeys(PHASE_TIMINGS, 0.0)
@@ -195,13 +197,14 @@ class PlanSession:
         warm, modifier = self._start(spec)
         timings["calibration"], self.calibration_time = self.calibration_time, 0.0
         self.nlp.retarget(spec, start_lag(self.coarse) if self.coarse.relative else np.zeros(3))
-        scored = "verification" if self.fine is not None else "planning"
+        fine = self.fine if verify else None
+        scored = "verification" if fine is not None else "planning"
         loop = Correction(self.nlp, timings, self.log, scored, modifier, warm, self.refinement)
         loop.run("planning", self.coarse)
-        if self.fine is not None:
-            loop.run("verification", self.fine)
+        if fine is not None:
+            loop.run("verification", fine)
         t0 = time.perf_counter()
-        final = self.fine or self.coarse
+        final = fine or self.coarse
         naive_roll = final.rollout(naive_commands(spec)) if baseline else None
         timings["naive_verification"] = time.perf_counter() - t0
         press = self.coarse.press_time + (self.fine.press_time if self.fine else 0.0)

@@ -27,7 +27,7 @@ from pathlib import Path
 import grpc
 
 from ..errors import InputError
-from .worker import worker_main
+from .worker import ready, worker_main
 
 SERVICE = "pushplan.Planner"
 """The gRPC service name; methods are ``/pushplan.Planner/<Method>``."""
@@ -91,7 +91,8 @@ def _loopback(host: str) -> bool:
         return False
 
 
-PRELOAD = ("pushplan.service.worker", "pushplan.config.scenario", "pushplan.planning.planner")
+PRELOAD = ("pushplan.service.worker", "pushplan.config.scenario", "pushplan.planning.planner",
+           "pushplan.planning.replan", "pushplan.identify.closed_loop")
 """Imported once by the fork server, so a session's process starts with them (numpy, scipy,
 CasADi, fe_contact's kernels): an open pays the model's build only."""
 
@@ -101,6 +102,11 @@ def _context():
     threads a fork would copy), with :data:`PRELOAD` imported once."""
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(PRELOAD))
+    # the fork server's imports (seconds) happen now, before the server says it listens, not
+    # inside the first Open: a first process from it waits for them
+    first = ctx.Process(target=ready, name="pushplan-forkserver-ready")
+    first.start()
+    first.join()
     return ctx
 
 
@@ -122,6 +128,7 @@ class Planner:
         fn = getattr(self, "_" + method.lower())
 
         def handle(raw: bytes, context) -> bytes:
+            t0 = time.perf_counter()
             try:
                 self._authorise(context)
                 try:
@@ -130,7 +137,8 @@ class Planner:
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, f"request: not a UTF-8 JSON object ({e})") from None
                 if not isinstance(request, dict):
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, "request: not a JSON object")
-                return json.dumps(fn(request, context)).encode()
+                answer = fn(request, context)
+                return json.dumps(answer | {"server_s": time.perf_counter() - t0}).encode()
             except _Abort as e:
                 context.abort(e.code, str(e))
             except InputError as e:
@@ -204,11 +212,15 @@ class Planner:
             if reply is None:
                 raise _Abort(grpc.StatusCode.DEADLINE_EXCEEDED, f"session {session.id}: no answer within {limit:.3g} s,"
                              " session closed")
-            raise _Abort(grpc.StatusCode.INTERNAL, f"session {session.id}: its process ended "
-                         f"(exit code {session.process.exitcode}), session closed")
+            raise self._ended(session)
         if reply[0] == "ok":
             return reply[1]
         raise _Abort(STATUS_OF[reply[1]], reply[2])
+
+    def _ended(self, session: _Session) -> _Abort:
+        """The error of a call on a session whose process ended (already dropped)."""
+        return _Abort(grpc.StatusCode.INTERNAL, f"session {session.id}: its process ended "
+                      f"(exit code {session.process.exitcode}), session closed")
 
     def _drop(self, session: _Session) -> None:
         with self._lock:
@@ -233,7 +245,11 @@ class Planner:
             if session.id not in self.sessions:
                 raise _Abort(grpc.StatusCode.NOT_FOUND, f"session: {session.id!r} was closed")
             session.last_used = time.monotonic()
-            session.conn.send((op, request))
+            try:
+                session.conn.send((op, request))
+            except (OSError, ValueError):  # the process ended and its end of the pipe is closed
+                self._drop(session)
+                raise self._ended(session) from None
             return self._receive(session, self.limits.call_timeout, context)
         finally:
             session.last_used = time.monotonic()

@@ -17,6 +17,7 @@ import math
 import os
 import time
 import tomllib
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -36,6 +37,20 @@ def _rows(value, key: str, width: int = 3, max_rows: int = 10_000) -> np.ndarray
 
 def _pose(value, key: str) -> np.ndarray:
     return _rows([value], key)[0]
+
+
+@dataclass(frozen=True)
+class _Aim:
+    """What the session's last plan expects, for a ``closed_loop`` re-plan: the pose its
+    path starts from (m, m, rad, from rest), that path (K + 1, 3) relative to it, its
+    spring-back fractions (3,), the pushes executed when it was made, and ``drift`` (3,),
+    the sum of the model's errors observed so far (``closed_loop.modifier``)."""
+
+    origin: np.ndarray
+    poses: np.ndarray
+    springback: np.ndarray
+    executed: int
+    drift: np.ndarray
 
 
 def _plan_doc(result) -> dict:
@@ -64,13 +79,17 @@ class SessionState:
         self.session = PlanSession(self.scenario, self.spec, verify=verify)
         self.build_time = time.perf_counter() - t0
         self.observations: list[dict] = []
+        self.aim: _Aim | None = None  # what the last plan expects, for a closed-loop re-plan
 
     def info(self) -> dict:
+        from ..config.plan import press_commands
+
         s = self.scenario
         return {"name": s.name, "steps": self.spec.steps, "target": list(self.spec.target),
                 "target_state": self.spec.target_state, "planning_elements": list(self.spec.planning_elements),
                 "verification_elements": list(s.elements) if self.session.fine is not None else None,
-                "build_time_s": self.build_time, "executed": len(self.session.executed), "pid": os.getpid()}
+                "build_time_s": self.build_time, "executed": len(self.session.executed), "pid": os.getpid(),
+                "press": [[c.dx, c.dy, c.dz, c.dtheta] for c in press_commands(s)]}
 
     def _spec(self, payload: dict):
         """The session's spec with the request's ``target`` (m, m, rad) and ``tolerance`` (m)."""
@@ -86,13 +105,21 @@ class SessionState:
 
     def plan(self, payload: dict) -> dict:
         result = self.session.plan(self._spec(payload), baseline=bool(payload.get("baseline", False)))
+        # from rest the plan's poses start at the rest pose; from a loaded state at a pose
+        # the session was not told, so a closed-loop re-plan cannot follow it
+        self.aim = (_Aim(np.zeros(3), result.verified.lower, result.springback.fractions, 0, np.zeros(3))
+                    if not self.session.executed else None)
         return _plan_doc(result)
 
     def replan(self, payload: dict) -> dict:
         """Record an observation (the pushes executed after the press, the lower-face pose
         after them, optionally the force (N) and time (s)) and re-plan the remaining steps
-        warm: the target less the observed pose, as ``pushplan plan --from`` does."""
+        warm: the target less the observed pose, as ``pushplan plan --from`` does.  With
+        ``closed_loop``, as ``pushplan closed-loop`` re-plans: the target shifted by the
+        model's error observed since the last plan (``closed_loop.modifier``), within a
+        quarter of the tolerances, corrected on the planning mesh alone."""
         from ..config.commands import planar_commands
+        from ..identify.closed_loop import modifier, shifted_spec
         from ..planning.replan import Start, remaining_spec
 
         executed = planar_commands(_rows(payload.get("executed", []) or np.zeros((0, 3)), "executed"))
@@ -100,12 +127,30 @@ class SessionState:
         spec = self._spec(payload)
         if len(executed) >= spec.steps:
             raise InputError(f"executed: {len(executed)} pushes executed, plan.steps = {spec.steps}: nothing to re-plan")
+        closed_loop = bool(payload.get("closed_loop", False))
+        drift = np.zeros(3)
+        if closed_loop:  # checked before any change: an InputError leaves the session as it was
+            if self.aim is None:
+                raise InputError("closed_loop: the session's last plan must be a Plan from rest or a Replan")
+            bias = self._bias(len(executed), observed)
+            drift = self.aim.drift + bias
+            spec = shifted_spec(spec, modifier(spec, bias, drift, self.aim.springback))
         start = Start(executed, observed)
         self.session.continue_from(executed)  # InputError before any change if they do not continue
         self.observations.append({"observed": observed.tolist(), "force": payload.get("force"),
                                   "time": payload.get("time")})
-        result = self.session.plan(remaining_spec(spec, start), baseline=False)
+        result = self.session.plan(remaining_spec(spec, start), baseline=False, verify=not closed_loop)
+        self.aim = _Aim(observed, result.verified.lower, result.springback.fractions, len(executed), drift)
         return _plan_doc(result) | {"observed": observed.tolist()}
+
+    def _bias(self, executed: int, observed: np.ndarray) -> np.ndarray:
+        """The model's error on the pushes executed since the last plan: the observed
+        pose less the one that plan expected after them (m, m, rad)."""
+        k = executed - self.aim.executed
+        if not 1 <= k < len(self.aim.poses):
+            raise InputError(f"executed: {k} pushes since the last plan; a closed_loop re-plan needs 1 to "
+                             f"{len(self.aim.poses) - 1}")
+        return observed - (self.aim.origin + self.aim.poses[k])
 
     def rollout(self, payload: dict) -> dict:
         """Roll commands out from the session's current state on one mesh; with
@@ -128,14 +173,22 @@ class SessionState:
 
 
 def _reply(conn, fn, *args) -> None:
+    """Send ``fn(*args)`` with ``session_s`` and ``session_cpu_s``, the wall and CPU time (s)
+    it took in this process, or the error."""
     try:
-        conn.send(("ok", fn(*args)))
+        t0, c0 = time.perf_counter(), time.process_time()
+        result = fn(*args)
+        conn.send(("ok", result | {"session_s": time.perf_counter() - t0, "session_cpu_s": time.process_time() - c0}))
     except InputError as e:
         conn.send(("error", "input", " ".join(str(e).split())))
     except SolverFailure as e:
         conn.send(("error", "solver", " ".join(str(e).split())))
     except Exception as e:  # a bug: reported as one, the session goes on
         conn.send(("error", "bug", f"{type(e).__name__}: {' '.join(str(e).split())}"))
+
+
+def ready() -> None:
+    """Nothing: the process the server starts first, to wait for the fork server's imports."""
 
 
 def worker_main(conn, scenario_text: str, name: str, verify: bool) -> None:
