@@ -71,11 +71,15 @@ class HeldDerivative:
         ``dr`` local, N per unit input.
     upper_force : ndarray, shape (n_upper, 3, J)
         Derivative of the nodal forces ``(f_int - f_ext)`` of the upper face, N per unit input.
+    contact_motion : ndarray, shape (n_contacts, 3, J), or None
+        ``du`` local: the derivative of each contact's gap and tangential
+        increment, m per unit input (for :mod:`~fe_contact.stepping.transitions`).
     """
 
     displacement: np.ndarray
     reaction: np.ndarray
     upper_force: np.ndarray
+    contact_motion: np.ndarray | None = None
 
 
 class HeldLinearisation:
@@ -104,7 +108,7 @@ class HeldLinearisation:
     """
 
     def __init__(self, model: Model, start: np.ndarray, U: np.ndarray, r: np.ndarray, node_status: np.ndarray):
-        self.model, self.U, self.r = model, U, r
+        self.model, self.U, self.r, self.node_status = model, U, r, node_status
         self.failure = ""
         f_int, K, _ = held_loading(model).tangent(model, U)
         self.f_int = f_int
@@ -119,6 +123,7 @@ class HeldLinearisation:
         self.w = U[lower] - start[lower]
         self.w[:, 2] = model.mesh.nodes[lower, 2] + U[lower, 2]
         u_t = self.w[:, :2] @ T[1:, :2].T
+        self.u_local = self.w @ T.T  # the gap and the tangential increments, local
         A, B, self.B_mu = law_jacobian(node_status == NodeStatus.SEPARATED, node_status == NodeStatus.SLIP, r,
                                        u_t, model.friction.mu_x, model.friction.mu_y)
         n = model.n_contacts
@@ -163,7 +168,10 @@ class HeldLinearisation:
         dU[model.free_dofs] = finish(np.einsum("ji,cjk->cik", T, dr))
         dU[model.upper_dofs] = d_upper
         d_force = (self.K_p @ dU + f_p[model.upper_dofs]).reshape(-1, 3, J)
-        return HeldDerivative(dU, dr, d_force)
+        dw = dU[model.lower_dofs.ravel()].reshape(n, 3, J) - d_start[model.lower_dofs.ravel()].reshape(n, 3, J)
+        dw[:, 2] += d_start[model.lower_dofs[:, 2]]  # the gap is total
+        du = np.einsum("ij,cjk->cik", T, dw) + np.einsum("ij,cj,k->cik", dT, self.w, d_alpha)
+        return HeldDerivative(dU, dr, d_force, du)
 
     def solve_adjoint(self, lam_U: np.ndarray, lam_force: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The transpose of :meth:`solve` (reverse mode): for the weights

@@ -137,6 +137,9 @@ class _Correction:
         solution, self.commands = self.solution, commands
         if self.method == "exact_gradient" and phase == "planning":
             roll, self.jacobian = fe.rollout_with_jacobian(commands)
+            if roll.nondifferentiable:  # a contact at a transition: no Gauss-Newton step from here
+                self.jacobian = None
+                _log_line(self.log, f"no exact gradient at these commands: {roll.nondifferentiable}")
         else:  # on the verification mesh: the planning mesh's Jacobian at its last commands
             roll = fe.rollout(commands)
         self.timings[f"{phase}_rollouts"] += roll.wall_time
@@ -157,6 +160,7 @@ class _Correction:
             modifier_used=tuple(float(v) for v in used_modifier), position_error=pos_err,
             yaw_error_deg=math.degrees(yaw_err), model_consistency=model_consistency(self.planner.params, solution),
             rollout_wall_s=roll.wall_time, nlp_wall_s=solution.wall_time if resolve else 0.0, gauss_newton=newton,
+            not_differentiable=roll.nondifferentiable,
         )
         self.iterations.append(it)
         _log_line(self.log, _iteration_line(it, spec))
@@ -257,8 +261,8 @@ class PlanSession:
         self._last: tuple[NlpSolution, np.ndarray, int] | None = None  # solution, modifier, pushes since
         self.refinement = refinement
         if refinement == "exact_gradient" and not all(fe.exact for fe in (self.coarse, self.fine) if fe is not None):
-            self.refinement = "modifier"  # a release after the commands, or a frictional pad: no derivatives yet
-            _log_line(log, "refinement: no exact gradient with a release or a frictional pad; modifier adaptation")
+            self.refinement = "modifier"  # a release with a retreat: not differentiated
+            _log_line(log, "refinement: no exact gradient through a release with a retreat; modifier adaptation")
         self._calibrate(spec)
         self.advance(after)
         self.build_time = time.perf_counter() - t0
@@ -404,9 +408,10 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), b
         False leaves ``result.naive`` None and saves that rollout.
     refinement : str
         The FE correction (:data:`REFINEMENTS`): ``"modifier"`` adaptation, or
-        ``"exact_gradient"`` (Gauss-Newton with the exact Jacobian; modifier adaptation
-        where the rollouts have no derivatives: a release after the commands, a
-        frictional pad).  ``result.refinement`` says which ran.
+        ``"exact_gradient"`` (Gauss-Newton with the exact Jacobian, through the release
+        for a rest target; modifier adaptation where the rollouts have no derivatives:
+        a release with a retreat).  ``result.refinement`` says which ran; an iteration
+        whose rollout had no derivative (a contact at a transition) says why.
 
     Raises
     ------
