@@ -23,22 +23,10 @@ balance ``g(p) = F(p) - k (c - p) = 0``; differentiating it,
 
 with ``dF/dp`` from three more directions of the same held step.
 
-A bonded lift (``release=Release("lift", n)``) adds one row, the rest after
-the release.  Its steps are held steps whose heights the release schedule
-chose (:class:`~fe_contact.stepping.release.ReleaseSchedule`): each height is
-differentiated as the schedule computed it (a lift step ``h + d / n``, ``d``
-the press depth; a put-down target of
-:func:`~fe_contact.stepping.release_path.put_down_target`, a function of the
-heights and forces met, of the weight and of ``E A / H``), and the last one,
-the put-down's root ``h*`` where the plate carries nothing, by the implicit
-function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
-from one more input column (the step's own height).  The path matters: the
-put-down overshoots below ``h*`` and comes back, and the contacts that slip
-on the way keep it.  A frictional pad's release
-(:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
-differentiated the same way, each load step's height as the root of its
-load (:func:`~fe_contact.stepping.release_derivatives.load_step_root`); with a compliant
-gripper the plate's pose of each step is eliminated by its balance
+A release (``release=Release("lift", n)``) adds one row, the rest after
+it, differentiated as the discrete map the release schedule took
+(:mod:`~fe_contact.stepping.release_derivatives`); a compliant gripper's
+plate with a frictional pad is eliminated by its balance in each step
 (:func:`~fe_contact.stepping.pad_sensitivity.solve_compliant_pad`).  A
 release with a retreat is not differentiated.
 
@@ -60,11 +48,11 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
 from .release import Release, rest_check
-from .step import half_command, step
-from .release_derivatives import RecordingSequence, load_step_root, put_down_root, release_height_derivative
+from .release_derivatives import (RecordingSequence, load_step_root, put_down_root, release_height_derivative,
+                                  whole_steps)
 from .predictor import commanded_pose
 from .pad_sensitivity import PadLinearisation, solve_compliant_pad
-from .sensitivity import (HeldDerivative, HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
+from .sensitivity import HeldLinearisation, lower_pose_derivative, solve_compliant, upper_pose_jacobian
 from .transitions import Transition, flipping_inputs, margins, summary
 
 COMPONENTS = ("dx", "dy", "dz", "dtheta")
@@ -350,7 +338,7 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
     moves with ``f`` times its derivative.  Returns (state, d_state, outputs,
     d_outputs, the margins of its contacts), or (status, message)."""
     d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, path)
-    parts = _whole_steps(model, [(state, new_state, report)] if k < K else sequence.parts(new_state))
+    parts = whole_steps(model, [(state, new_state, report)] if k < K else sequence.parts(new_state))
     if k < K:
         sequence.taken = []
     if not parts:
@@ -411,25 +399,6 @@ def _load_root(model, result, load, path, seeds, found):
     return state_, StateDerivative(*arrays[:3]), outputs_, d_row, found[-1]
 
 
-def _whole_steps(model, parts):
-    """``parts`` (start, state, report) with every step that a frictional pad
-    took in halves (:func:`~fe_contact.stepping.step.step`, its whole command
-    having failed) replaced by its halves, taken again (the same steps), or
-    None if one does not converge."""
-    out = []
-    for start, end, report in parts or []:
-        if "half steps" not in report.message:
-            out.append((start, end, report))
-            continue
-        half = half_command(report.command)
-        middle, first = step(model, start, half)
-        finish, second = step(model, middle, half)
-        if not (first.converged and second.converged):
-            return None
-        out += _whole_steps(model, [(start, middle, first), (middle, finish, second)]) or [None]
-    return None if None in out else out
-
-
 @dataclass(frozen=True)
 class StateDerivative:
     """Derivative of a state along J inputs: ``displacement`` (n_dofs, J), m;
@@ -462,8 +431,8 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
         held = lin.solve(d_state.displacement, d_upper, seeds[:6])
         d_plate = d_pose[[0, 1, 3]]
     else:
-        held, d_plate = _compliant(model, state, report, lin, d_state, d_pose, seeds,
-                                   np.array([translation[0], translation[1], rotation]))
+        held, d_plate = solve_compliant(model, report, lin, d_state.displacement, d_pose, seeds,
+                                        np.array([translation[0], translation[1], rotation]))
     dU = held.displacement
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
     outputs = _report_outputs(report, new_state)
@@ -509,31 +478,6 @@ def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
     return (new_state, StateDerivative(dU, d_pose, d_plate), _report_outputs(report, new_state), d_out,
             _margins(model, lin, held, seeds))
-
-
-def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):
-    """Derivatives of a compliant-gripper step: the plate balance solved for
-    ``dp``; returns the held step's derivative along the inputs with ``dp``
-    eliminated, and ``dp``."""
-    J = d_pose.shape[1]
-    p = np.array(report.plate)
-    Jp = upper_pose_jacobian(model, float(p[2]))  # (3 n_up, 4)
-    zeros = np.zeros
-    d_upper = np.hstack([np.outer(Jp[:, 2], d_pose[2]), Jp[:, [0, 1, 3]]])
-    d_start = np.hstack([d_state.displacement, zeros((model.mesh.n_dofs, 3))])
-    held = lin.solve(d_start, d_upper, np.hstack([seeds[:6], zeros((6, 3))]))
-    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
-    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
-    k = model.gripper.stiffness
-    dk = np.vstack([seeds[6], seeds[6], seeds[7]])
-    dc = d_pose[[0, 1, 3]]
-    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * dc + (c - p)[:, None] * dk - dF[:, :J])
-
-    def combined(x):
-        return x[..., :J] + x[..., J:] @ dp
-
-    return HeldDerivative(*(combined(x) for x in (held.displacement, held.reaction, held.upper_force,
-                                                 held.contact_motion))), dp
 
 
 def _report_outputs(report: StepReport, state: State) -> np.ndarray:

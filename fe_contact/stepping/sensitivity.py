@@ -321,3 +321,35 @@ def lower_pose_derivative(model: Model, U: np.ndarray, dU: np.ndarray) -> np.nda
     d_dot = np.einsum("n,nk->k", w * p[:, 0], d[:, 0]) + np.einsum("n,nk->k", w * p[:, 1], d[:, 1])
     d_yaw = (dot * d_cross - cross * d_dot) / (dot**2 + cross**2)
     return np.vstack([d_centroid, d_yaw])
+
+def solve_compliant(model: Model, report, lin: HeldLinearisation, d_start: np.ndarray, d_pose: np.ndarray,
+                    seeds: np.ndarray, c: np.ndarray) -> tuple[HeldDerivative, np.ndarray]:
+    """Derivatives of a compliant-gripper step (:mod:`fe_contact.stepping.gripper`):
+    the plate balance ``g(p) = F(p) - k (c - p) = 0`` differentiated,
+
+        (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p,
+
+    with ``dF/dp`` from three more directions of the same held step.  ``d_start``
+    (n_dofs, J), ``d_pose`` (4, J) the commanded pose's, ``seeds`` (8, J) the
+    parameters' (the last two the stiffnesses), ``c`` (3,) the commanded plate pose.
+    Returns the held step's derivative with ``dp`` eliminated, and ``dp`` (3, J)."""
+    J = d_pose.shape[1]
+    p = np.array(report.plate)
+    Jp = upper_pose_jacobian(model, float(p[2]))  # (3 n_up, 4)
+    zeros = np.zeros
+    d_upper = np.hstack([np.outer(Jp[:, 2], d_pose[2]), Jp[:, [0, 1, 3]]])
+    d_start = np.hstack([d_start, zeros((model.mesh.n_dofs, 3))])
+    held = lin.solve(d_start, d_upper, np.hstack([seeds[:6], zeros((6, 3))]))
+    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
+    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
+    k = model.gripper.stiffness
+    dk = np.vstack([seeds[6], seeds[6], seeds[7]])
+    dc = d_pose[[0, 1, 3]]
+    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * dc + (c - p)[:, None] * dk - dF[:, :J])
+
+    def combined(x):
+        return x[..., :J] + x[..., J:] @ dp
+
+    return HeldDerivative(*(combined(x) for x in (held.displacement, held.reaction, held.upper_force,
+                                                 held.contact_motion))), dp
+
