@@ -124,3 +124,11 @@ def test_the_threshold_is_the_stated_fraction_of_the_input():
         assert flipping_inputs(1, m, dm, kinds, np.array([1.0]))[0][0] == expected
     m, dm, kinds = _one_contact(NodeStatus.STICK, [1.0, 0.5, 0.0], [0.0] * 3, [1.0, 0.5, 0.0], [0.0] * 3)
     assert not flipping_inputs(1, m, dm, kinds, np.array([1.0]))[0][0]
+
+
+def test_reverse_mode_refuses_a_frictional_pad():
+    # rollout_gradient transposes the held step only: with a pad it would differentiate another model
+    from fe_contact import rollout_gradient
+
+    with pytest.raises(ValueError, match="frictional pad is not differentiated in reverse mode"):
+        rollout_gradient(pad_model(2.0, gripper=Gripper()), PUSH, np.zeros((2, 9)))

@@ -338,7 +338,11 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
     moves with ``f`` times its derivative.  Returns (state, d_state, outputs,
     d_outputs, the margins of its contacts), or (status, message)."""
     d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, path)
-    parts = whole_steps(model, [(state, new_state, report)] if k < K else sequence.parts(new_state))
+    taken = [(state, new_state, report)] if k < K else sequence.parts(new_state)
+    if load is not None and any("half steps" in part[2].message for part in taken or []):
+        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1}: a load step taken in parts (its load half way, "
+                                         "then the whole): its derivative through them is not available")
+    parts = whole_steps(model, taken)
     if k < K:
         sequence.taken = []
     if not parts:
