@@ -9,7 +9,8 @@ import pytest
 
 import fe_contact.stepping.pad_sensitivity as pad_sensitivity
 from fe_contact import Command, Friction, Gripper, Material, Model, NodeStatus, SolverOptions, block_mesh
-from fe_contact.stepping.derivatives import check_derivatives, rollout_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
+from fe_contact.stepping.derivatives import rollout_derivatives
 from fe_contact.stepping.release import Release
 from fe_contact.stepping.transitions import TRANSITION_TOL, flipping_inputs, margins
 

@@ -490,8 +490,5 @@ def _report_outputs(report: StepReport, state: State) -> np.ndarray:
     return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])
 
 
-from .derivative_check import DerivativeCheck, check_derivatives  # noqa: E402  (it calls rollout_derivatives)
-
-__all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "DerivativeCheck", "Transition",
-           "applicable_parameters", "check_derivatives", "input_sizes", "parameter_values", "rollout_derivatives",
-           "with_parameters"]
+__all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "Transition", "applicable_parameters",
+           "input_sizes", "parameter_values", "rollout_derivatives", "with_parameters"]
