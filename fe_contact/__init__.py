@@ -60,8 +60,8 @@ from .stepping.pose import ZERO_MOTION, face_centroid_displacement, planar_yaw, 
 from .stepping.command import PadLoad
 from .stepping.release import ERROR_TOL_REMOVED, Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
-from .stepping.derivatives import (PARAMETERS, RolloutDerivatives, applicable_parameters, check_derivatives,
-                                   rollout_derivatives)
+from .stepping.derivative_check import check_derivatives
+from .stepping.derivatives import PARAMETERS, RolloutDerivatives, applicable_parameters, rollout_derivatives
 from .stepping.sequence import StepSequence, release_to_rest, run, run_release
 from .stepping.step import step
 from .stepping.warmup import warm_up

@@ -11,7 +11,8 @@ import fe_contact.fem.elasticity as elasticity
 import fe_contact.stepping.gripper as gripper
 import fe_contact.stepping.sensitivity as sensitivity
 from fe_contact import Command, Friction, Gripper, Material, Model, NodeStatus, SolverOptions, block_mesh
-from fe_contact.stepping.derivatives import OUTPUTS, check_derivatives, rollout_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
+from fe_contact.stepping.derivatives import OUTPUTS, rollout_derivatives
 
 REL_TOL = 1e-6
 """Agreement of exact and central-difference derivatives (normalised, see check_derivatives)."""

@@ -16,7 +16,7 @@ from fe_contact.fem.assembly import sparsity_pattern
 from fe_contact.fem.elasticity import element_geometry, internal_force, internal_force_and_tangent, stored_energy
 from fe_contact.fem.finite_strain import (AUTO_ELEMENT, AUTO_FBAR_POISSON, AUTO_HEX8_POISSON, auto_fbar_weight,
                                           element_force_weight_derivative, element_forces)
-from fe_contact.stepping.derivatives import check_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
 
 from test_materials import RUBBER, distorted_mesh
 

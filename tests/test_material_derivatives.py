@@ -11,7 +11,8 @@ import pytest
 import fe_contact.fem.finite_strain as finite_strain
 from fe_contact import Command, Friction, Material, Model, SolverOptions, block_mesh
 from fe_contact.fem.elasticity import internal_force
-from fe_contact.stepping.derivatives import applicable_parameters, check_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
+from fe_contact.stepping.derivatives import applicable_parameters
 from fe_contact.stepping.sensitivity import HeldLinearisation
 
 FORCE_TOL = 1e-7

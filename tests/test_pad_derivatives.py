@@ -9,7 +9,8 @@ import pytest
 
 import fe_contact.stepping.pad_sensitivity as pad_sensitivity
 from fe_contact import Command, Friction, Material, Model, NodeStatus, SolverOptions, block_mesh
-from fe_contact.stepping.derivatives import check_derivatives, rollout_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
+from fe_contact.stepping.derivatives import rollout_derivatives
 from fe_contact.stepping.release import Release
 
 REL_TOL = 1e-6

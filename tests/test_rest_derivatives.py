@@ -10,7 +10,8 @@ import pytest
 import fe_contact.stepping.derivatives as derivatives
 import fe_contact.stepping.release as release
 from fe_contact import Command, Friction, Gripper, Material, Model, NodeStatus, SolverOptions, block_mesh
-from fe_contact.stepping.derivatives import OUTPUTS, check_derivatives, rollout_derivatives
+from fe_contact.stepping.derivative_check import check_derivatives
+from fe_contact.stepping.derivatives import OUTPUTS, rollout_derivatives
 from fe_contact.stepping.release import Release
 
 REL_TOL = 1e-6

@@ -18,8 +18,6 @@ MAX_FUNCTION_LINES = 60
 SPLIT_ELSEWHERE = {
     "fe_contact/stepping/newton.py:equilibrium",
     "fe_contact/stepping/measure.py:measure",
-    "fe_contact/stepping/derivatives.py:rollout_derivatives",
-    "fe_contact/stepping/derivatives.py:check_derivatives",
 }
 # pushplan's layers, lowest first; a module may import from its own layer and those before it
 LAYERS = ("errors", "resources", "config", "outputs", "run", "planning", "identify", "mujoco", "drake", "studies", "service",

@@ -75,7 +75,7 @@ def rollout_gradient(model: Model, commands, weights, state: State | None = None
         As :func:`~fe_contact.stepping.derivatives.rollout_derivatives`, or
         weights of the wrong shape.
     """
-    commands, parameters = _check(model, commands, parameters)
+    commands, parameters = _check(model, commands, parameters, pad=False)
     K = len(commands)
     g = np.asarray(weights, dtype=float)
     if g.shape != (K, len(OUTPUTS)) or not np.all(np.isfinite(g)):

@@ -23,22 +23,19 @@ balance ``g(p) = F(p) - k (c - p) = 0``; differentiating it,
 
 with ``dF/dp`` from three more directions of the same held step.
 
-A bonded lift (``release=Release("lift", n)``) adds one row, the rest after
-the release.  Its steps are held steps whose heights the release schedule
-chose (:class:`~fe_contact.stepping.release.ReleaseSchedule`): each height is
-differentiated as the schedule computed it (a lift step ``h + d / n``, ``d``
-the press depth; a put-down target of
-:func:`~fe_contact.stepping.release_path.put_down_target`, a function of the
-heights and forces met, of the weight and of ``E A / H``), and the last one,
-the put-down's root ``h*`` where the plate carries nothing, by the implicit
-function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
-from one more input column (the step's own height).  The path matters: the
-put-down overshoots below ``h*`` and comes back, and the contacts that slip
-on the way keep it.  A frictional pad's release
-(:mod:`~fe_contact.stepping.pad_sensitivity` for its steps) is
-differentiated the same way, each load step's height as the root of its
-load (:func:`~fe_contact.stepping.release_derivatives.load_step_root`).  Open releases (``open > 0``) and a
-release with a retreat are not differentiated.
+A release (``release=Release("lift", n)``) adds one row, the rest after
+it, differentiated as the discrete map the release schedule took
+(:mod:`~fe_contact.stepping.release_derivatives`); a compliant gripper's
+plate with a frictional pad is eliminated by its balance in each step
+(:func:`~fe_contact.stepping.pad_sensitivity.solve_compliant_pad`).  A
+release with a retreat is not differentiated.
+
+Where a contact ends a step at a transition of the contact law
+(:mod:`~fe_contact.stepping.transitions`: an input change of
+``TRANSITION_TOL`` of its size changes its branch), the outputs from that
+step on have no derivative along that input: those entries are NaN and
+:attr:`RolloutDerivatives.transitions` says where and why.  The central
+differences' check is :mod:`~fe_contact.stepping.derivative_check`.
 """
 
 from __future__ import annotations
@@ -50,13 +47,13 @@ import numpy as np
 
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
-from .release import Release
-from .step import half_command, step
-from .release_derivatives import RecordingSequence, load_step_root, put_down_root, release_height_derivative
+from .release import Release, rest_check
+from .release_derivatives import (RecordingSequence, load_step_root, put_down_root, release_height_derivative,
+                                  whole_steps)
 from .predictor import commanded_pose
-from .sequence import StepSequence
-from .pad_sensitivity import PadLinearisation
-from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_derivative, upper_pose_jacobian)
+from .pad_sensitivity import PadLinearisation, solve_compliant_pad
+from .sensitivity import HeldLinearisation, lower_pose_derivative, solve_compliant, upper_pose_jacobian
+from .transitions import Transition, flipping_inputs, margins, summary
 
 COMPONENTS = ("dx", "dy", "dz", "dtheta")
 PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density", "stiffness_xy", "stiffness_yaw")
@@ -76,9 +73,10 @@ class RolloutDerivatives:
     outputs : ndarray, shape (n_steps, 9)
         :data:`OUTPUTS` after each step (SI, rad).
     d_commands : ndarray, shape (n_steps, 9, n_steps, 4)
-        ``d outputs[k, i] / d commands[j, c]`` (zero for ``j > k``).
+        ``d outputs[k, i] / d commands[j, c]`` (zero for ``j > k``); NaN
+        where there is no derivative (:attr:`transitions`).
     d_parameters : ndarray, shape (n_steps, 9, n_parameters)
-        Derivatives with respect to ``parameters``.
+        Derivatives with respect to ``parameters`` (NaN likewise).
     parameters : tuple of str
     state : State
         Final state.
@@ -88,6 +86,13 @@ class RolloutDerivatives:
     parameter_state : StateDerivative
         Derivatives of the final state with respect to ``parameters`` (to
         continue the rollout: ``rollout_derivatives(..., start=this)``).
+    transitions : tuple of Transition
+        The contacts that ended a step at a transition of the contact law
+        (:mod:`~fe_contact.stepping.transitions`), each with the inputs along
+        which the outputs from that step on have no derivative.
+    rest : Rest or None
+        With a release: whether the block settled
+        (:func:`~fe_contact.stepping.release.rest_check`).
     """
 
     status: Status
@@ -100,10 +105,28 @@ class RolloutDerivatives:
     reports: tuple
     wall_time: float
     parameter_state: "StateDerivative"
+    transitions: tuple = ()
+    rest: object = None
 
     @property
     def converged(self) -> bool:
         return self.status is Status.CONVERGED
+
+    @property
+    def differentiable(self) -> bool:
+        """Every derivative exists (no contact at a transition; a failed rollout is not)."""
+        return self.converged and not self.transitions
+
+    @property
+    def inputs(self) -> tuple:
+        """The column names of :meth:`jacobian`: ``dx[0], dy[0], ...``, then the parameters."""
+        K = self.d_commands.shape[2]
+        return tuple(f"{c}[{k}]" for k in range(K) for c in COMPONENTS) + tuple(self.parameters)
+
+    def nondifferentiable(self) -> str:
+        """Why some derivatives do not exist ("" if they all do): the contacts at
+        a transition, by step and kind (:func:`~fe_contact.stepping.transitions.summary`)."""
+        return summary(self.transitions, self.inputs)
 
     def jacobian(self) -> np.ndarray:
         """All derivatives as one matrix (n_steps * 9, n_steps * 4 + n_parameters),
@@ -141,16 +164,29 @@ def with_parameters(model: Model, **values) -> Model:
                    gripper=Gripper(v["stiffness_xy"], v["stiffness_yaw"]))
 
 
-def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
+def input_sizes(model: Model, commands, parameters) -> np.ndarray:
+    """Typical size of each input (4 K + n_parameters,): the largest command
+    translation (at least 1e-4 of the block) for ``dx, dy, dz``, the largest
+    turn (at least that translation over the block's size) for ``dtheta``,
+    ``|value|`` of a parameter, 1 rad for the angle; SI."""
+    arr = np.array([[c.dx, c.dy, c.dz, c.dtheta] for c in commands]).reshape(-1, 4)
+    size = max(model.mesh.size)
+    move = max(float(np.abs(arr[:, :3]).max(initial=0.0)), size * 1e-4)
+    turn = max(float(np.abs(arr[:, 3]).max(initial=0.0)), move / size)
+    values = parameter_values(model)
+    return np.array([move, move, move, turn] * len(commands)
+                    + [1.0 if p == "angle" else abs(values[p]) for p in parameters])
+
+
+def _check(model, commands, parameters, release=None, pad: bool = True) -> tuple[list, tuple]:
     if not isinstance(model, Model):
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
     if release is not None and (not isinstance(release, Release) or release.mode != "lift"
                                 or any(getattr(release, "away", (0.0, 0.0)))):
         raise ValueError(f"release must be a Release of mode 'lift' straight up (an open release, or a retreat "
                          f"away, is not differentiated), got {release!r}")
-    if model.pad is not None and not model.gripper.rigid:
-        raise ValueError("a compliant gripper with a frictional pad is not differentiated (its plate's pose, solved "
-                         "in the step's Newton loop, has no derivative here yet): use a rigid gripper")
+    if model.pad is not None and not pad:
+        raise ValueError("a frictional pad is not differentiated in reverse mode: use rollout_derivatives")
     commands = list(commands)
     for k, c in enumerate(commands):
         if not isinstance(c, Command):
@@ -162,6 +198,37 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
         if p.startswith("stiffness") and model.gripper.rigid:
             raise ValueError(f"{p} has no derivative with a rigid gripper (stiffness inf)")
     return commands, parameters
+
+
+@dataclass
+class _Run:
+    """The forward sweep's running values: the state derivative, the outputs and their derivatives so far."""
+
+    d_state: "StateDerivative"
+    seeds: np.ndarray  # d parameter / d input (len(PARAMETERS), J)
+    typical: np.ndarray  # (J,) the inputs' sizes; 0 for the release's own height column
+    outputs: np.ndarray
+    d_out: np.ndarray
+    path: list  # (d height, d F_z) of the release's start, then of each release step
+    transitions: list
+
+
+def _start(model, commands, parameters, start, release) -> _Run:
+    """The sweep's inputs: ``4 K`` command columns, the parameters', and with a
+    release one more, the current release step's own height."""
+    K, n_par = len(commands), len(parameters)
+    J = 4 * K + n_par + (release is not None)
+    seeds = np.zeros((len(PARAMETERS), J))
+    for j, p in enumerate(parameters):
+        seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
+    d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
+    if start is not None:
+        for name in ("displacement", "pose", "plate"):
+            getattr(d_state, name)[:, 4 * K:4 * K + n_par] = getattr(start.parameter_state, name)
+    typical = np.zeros(J)
+    typical[:4 * K + n_par] = input_sizes(model, commands, parameters)
+    rows = K + (release is not None)
+    return _Run(d_state, seeds, typical, np.zeros((rows, 9)), np.zeros((rows, 9, J)), [], [])
 
 
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
@@ -177,7 +244,7 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
     have one more row: the rest, after the release (module docstring: each
     height differentiated as the schedule chose it, the put-down's root by the
-    implicit function theorem on ``F_z = 0``).
+    implicit function theorem on ``F_z = 0``), and ``rest`` says whether it settled.
 
     Raises
     ------
@@ -192,41 +259,75 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     commands, parameters = _check(model, commands, parameters, release)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
-    K, n_par = len(commands), len(parameters)
-    J = 4 * K + n_par + (release is not None)  # with a release, the last column: the current release step's height
-    seeds = np.zeros((len(PARAMETERS), J))  # d parameter / d input
-    for j, p in enumerate(parameters):
-        seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
-    d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
-    if start is not None:
-        for name in ("displacement", "pose", "plate"):
-            getattr(d_state, name)[:, 4 * K:4 * K + n_par] = getattr(start.parameter_state, name)
-    rows = K + (release is not None)
-    outputs, d_out, reports = np.zeros((rows, 9)), np.zeros((rows, 9, J)), []
-    status, message = Status.CONVERGED, ""
+    run = _start(model, commands, parameters, start, release)
     sequence = RecordingSequence(model, commands, state, release=release, consume_start=False)
-    path = []  # (d height, d F_z) of the release's start, then of each release step
+    status, message, state, reports, pending = _sweep(model, sequence, len(commands), state, run)
+    return _result(model, commands, parameters, sequence, run, (status, message, state, reports, pending),
+                   release, t0)
+
+
+def _sweep(model, sequence, K, state, run: _Run):
+    """The forward sweep through every step of ``sequence``; returns (status,
+    message, final state, reports, the last step's margins not yet checked:
+    a put-down's root corrects them first)."""
+    force_z = OUTPUTS.index("force_z")
+    status, message, reports, pending = Status.CONVERGED, "", [], None
+    rows = run.outputs.shape[0]
     for k, (new_state, report) in enumerate(sequence):
+        if pending is not None:  # the previous step was not the last: its transitions before this step
+            _mark(run, *pending)
         if k == K:
-            path.append((d_state.pose[2].copy(), d_out[K - 1, OUTPUTS.index("force_z")].copy()))
-        result = _sequence_step(model, sequence, k, K, state, new_state, report, d_state, seeds, path)
+            run.path.append((run.d_state.pose[2].copy(), run.d_out[K - 1, force_z].copy()))
+        result = _sequence_step(model, sequence, k, K, state, new_state, report, run.d_state, run.seeds, run.path)
         if isinstance(result[0], Status):
-            status, message = result
+            status, message, pending = *result, None
             break
-        state, d_state, row, d_row = result
+        state, run.d_state, row, d_row, found = result
         sequence.state = state  # with the tangent at the converged configuration
         reports.append(report)
-        outputs[min(k, rows - 1)], d_out[min(k, rows - 1)] = row, d_row
+        run.outputs[min(k, rows - 1)], run.d_out[min(k, rows - 1)] = row, d_row
+        pending = (len(reports), found, min(k, rows - 1))
         if k >= K:
-            path.append((d_state.pose[2], d_row[OUTPUTS.index("force_z")]))
+            run.path.append((run.d_state.pose[2], d_row[force_z]))
+    return status, message, state, reports, pending
+
+
+def _mark(run: _Run, step_number: int, found: list, row: int) -> None:
+    """The transitions of step ``step_number`` (1-based; its margins ``found``,
+    their derivatives along the inputs): the inputs along which a contact
+    changes branch lose their derivatives (NaN) in the state and in the
+    outputs from ``row`` on."""
+    for m, dm, kind, skip in found:
+        flips, transitions = flipping_inputs(step_number, m, dm.reshape(m.shape + (-1,)), kind, run.typical, skip)
+        if not flips.any():
+            continue
+        run.transitions += transitions
+        for x in (run.d_state.displacement, run.d_state.pose, run.d_state.plate):
+            x[:, flips] = np.nan
+        run.d_out[row:, :, flips] = np.nan
+
+
+def _result(model, commands, parameters, sequence, run: _Run, swept, release, t0) -> RolloutDerivatives:
+    """The :class:`RolloutDerivatives` of a finished sweep: a put-down's root, the last step's transitions, the rest."""
+    status, message, state, reports, pending = swept
+    K, n_par, rows = len(commands), len(parameters), run.outputs.shape[0]
     n = min(len(reports), K) if status is not Status.CONVERGED else rows
+    d_state, rest = run.d_state, None
     if release is not None and status is Status.CONVERGED:
-        d_state = StateDerivative(*put_down_root(sequence.schedule, d_out[-1], OUTPUTS.index("force_z"),
-                                                 (d_state.displacement, d_state.pose, d_state.plate)))
-    tail = StateDerivative(*(getattr(d_state, k)[:, 4 * K:4 * K + n_par] for k in ("displacement", "pose", "plate")))
-    return RolloutDerivatives(status, message, outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
-                              d_out[:n, :, 4 * K:4 * K + n_par], parameters, state, tuple(reports), time.perf_counter() - t0,
-                              tail)
+        m, dm, kind, skip = pending[1][-1]
+        arrays = put_down_root(sequence.schedule, run.d_out[-1], OUTPUTS.index("force_z"),
+                               (d_state.displacement, d_state.pose, d_state.plate, dm.reshape(-1, dm.shape[-1])))
+        run.d_state = StateDerivative(*arrays[:3])
+        pending[1][-1] = (m, arrays[3].reshape(dm.shape), kind, skip)
+        rest = rest_check(model, state, reports[-1], sequence.schedule)
+    if pending is not None:
+        _mark(run, *pending)
+    tail = StateDerivative(*(getattr(run.d_state, k)[:, 4 * K:4 * K + n_par]
+                             for k in ("displacement", "pose", "plate")))
+    d_out = run.d_out
+    return RolloutDerivatives(status, message, run.outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
+                              d_out[:n, :, 4 * K:4 * K + n_par], parameters, state, tuple(reports),
+                              time.perf_counter() - t0, tail, tuple(run.transitions), rest)
 
 
 def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, seeds, path):
@@ -234,65 +335,72 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
     for ``k < K``, else a release step's), through the parts it was taken in:
     the halves of a frictional pad's step that failed whole, the parts a release
     step's error control kept; a part of a fraction ``f`` of the whole command
-    moves with ``f`` times its derivative."""
-    J = seeds.shape[1]
-    d_whole = np.zeros((4, J))
+    moves with ``f`` times its derivative.  Returns (state, d_state, outputs,
+    d_outputs, the margins of its contacts), or (status, message)."""
+    d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, path)
+    taken = [(state, new_state, report)] if k < K else sequence.parts(new_state)
+    if load is not None and any("half steps" in part[2].message for part in taken or []):
+        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1}: a load step taken in parts (its load half way, "
+                                         "then the whole): its derivative through them is not available")
+    parts = whole_steps(model, taken)
     if k < K:
-        d_whole[:, 4 * k:4 * k + 4] = np.eye(4)
-        parts = _whole_steps(model, [(state, new_state, report)])
         sequence.taken = []
-    else:  # a release step: its height as the schedule chose it; the last column is its own
-        load = sequence.schedule.height_partials.get("load")  # a pad's load step: its height found with its load
-        if load is None:
-            d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
-                                                   seeds[PARAMETERS.index("young")],
-                                                   seeds[PARAMETERS.index("density")])
-            d_whole[2] -= d_state.pose[2]
-        d_whole[2, -1] = 1.0
-        for name in ("displacement", "pose", "plate"):
-            getattr(d_state, name)[:, -1] = 0.0
-        parts = _whole_steps(model, sequence.parts(new_state))
     if not parts:
         return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: the parts it was taken in were not found"
-    size = np.abs([report.command.dx, report.command.dy, report.command.dz, report.command.dtheta])
-    c = int(np.argmax(size))
+    size = _command_array(report.command)
+    c = int(np.argmax(np.abs(size)))
+    found = []
     for start, end, part in parts:
-        fraction = 1.0 if size[c] == 0 else [part.command.dx, part.command.dy, part.command.dz,
-                                             part.command.dtheta][c] / [report.command.dx, report.command.dy,
-                                                                        report.command.dz, report.command.dtheta][c]
+        fraction = 1.0 if size[c] == 0 else _command_array(part.command)[c] / size[c]
         result = _step_derivative(model, start, end, part, d_state, fraction * d_whole, seeds)
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
+        found.append(result[4])
     if k >= K and load:
-        d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
-            seeds[PARAMETERS.index("density")]
-        state_, d_st, outputs_, d_row = result
-        d_row, arrays = load_step_root(d_row, OUTPUTS.index("force_z"), load[0], d_target,
-                                       (d_st.displacement, d_st.pose, d_st.plate))
-        result = state_, StateDerivative(*arrays), outputs_, d_row
+        result = _load_root(model, result, load, path, seeds, found)
     if len(parts) == 1 and parts[0][1] is new_state:
-        return result
-    return new_state, result[1], result[2], result[3]
+        return result[:4] + (found,)
+    return new_state, result[1], result[2], result[3], found
 
 
-def _whole_steps(model, parts):
-    """``parts`` (start, state, report) with every step that a frictional pad
-    took in halves (:func:`~fe_contact.stepping.step.step`, its whole command
-    having failed) replaced by its halves, taken again (the same steps), or
-    None if one does not converge."""
-    out = []
-    for start, end, report in parts or []:
-        if "half steps" not in report.message:
-            out.append((start, end, report))
-            continue
-        half = half_command(report.command)
-        middle, first = step(model, start, half)
-        finish, second = step(model, middle, half)
-        if not (first.converged and second.converged):
-            return None
-        out += _whole_steps(model, [(start, middle, first), (middle, finish, second)]) or [None]
-    return None if None in out else out
+def _command_array(command) -> np.ndarray:
+    return np.array([command.dx, command.dy, command.dz, command.dtheta])
+
+
+def _whole_command(model, sequence, k, K, d_state, seeds, path):
+    """The derivative (4, J) of the ``k``-th step's whole command and, for a pad's
+    load step, its schedule's ``(load, d load / d loaded, d load / d weight)``."""
+    d_whole = np.zeros((4, seeds.shape[1]))
+    if k < K:
+        d_whole[:, 4 * k:4 * k + 4] = np.eye(4)
+        return d_whole, None
+    # a release step: its height as the schedule chose it; the last column is its own
+    load = sequence.schedule.height_partials.get("load")  # a pad's load step: its height found with its load
+    if load is None:
+        d_whole[2] = release_height_derivative(model, sequence.schedule, d_state.pose[2], path,
+                                               seeds[PARAMETERS.index("young")], seeds[PARAMETERS.index("density")])
+        d_whole[2] -= d_state.pose[2]
+    d_whole[2, -1] = 1.0
+    for name in ("displacement", "pose", "plate"):
+        getattr(d_state, name)[:, -1] = 0.0
+    return d_whole, load
+
+
+def _load_root(model, result, load, path, seeds, found):
+    """A pad's load step: its height the root of its load
+    (:func:`~fe_contact.stepping.release_derivatives.load_step_root`), applied
+    to the state, the outputs and the margins of the step's last part."""
+    d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
+        seeds[PARAMETERS.index("density")]
+    state_, d_st, outputs_, d_row, _ = result
+    m, dm, kind, skip = found[-1]
+    d_row, arrays = load_step_root(d_row, OUTPUTS.index("force_z"), load[0], d_target,
+                                   (d_st.displacement, d_st.pose, d_st.plate, dm.reshape(-1, dm.shape[-1])))
+    if load[0] == 0:  # the pad open at zero load: its height does not move the block, its contacts are not checked
+        skip = skip | (np.arange(m.shape[0]) >= model.n_lower)
+    found[-1] = (m, arrays[3].reshape(dm.shape), kind, skip)
+    return state_, StateDerivative(*arrays[:3]), outputs_, d_row, found[-1]
 
 
 @dataclass(frozen=True)
@@ -308,8 +416,9 @@ class StateDerivative:
 def _step_derivative(model, state, new_state, report, d_state, d_command, seeds):
     """The derivatives of the step from ``state`` that ended in ``(new_state,
     report)``: (state with the tangent at the converged configuration, d_state,
-    outputs (9,), d_outputs (9, J)), or (status, message) if the step or its
-    linearisation failed."""
+    outputs (9,), d_outputs (9, J), the margins of its contacts
+    :func:`~fe_contact.stepping.transitions.margins` with the contacts to skip),
+    or (status, message) if the step or its linearisation failed."""
     if not report.converged:
         return report.status, f"step {state.step_index + 1}: {report.message}"
     translation, rotation = commanded_pose(state, report.command)
@@ -324,160 +433,55 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
     if model.gripper.rigid:
         d_upper = upper_pose_jacobian(model, rotation) @ d_pose
         held = lin.solve(d_state.displacement, d_upper, seeds[:6])
-        dU, d_force, d_plate = held.displacement, held.upper_force, d_pose[[0, 1, 3]]
+        d_plate = d_pose[[0, 1, 3]]
     else:
-        dU, d_force, d_plate = _compliant(model, state, report, lin, d_state, d_pose, seeds,
-                                          np.array([translation[0], translation[1], rotation]))
-    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), d_force.sum(axis=0), d_plate])
+        held, d_plate = solve_compliant(model, report, lin, d_state.displacement, d_pose, seeds,
+                                        np.array([translation[0], translation[1], rotation]))
+    dU = held.displacement
+    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
     outputs = _report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
-    return new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J)
+    return (new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J),
+            _margins(model, lin, held, seeds))
+
+
+def _margins(model, lin, held, seeds):
+    """The branch margins of a step's contacts and their derivatives
+    (:func:`~fe_contact.stepping.transitions.margins`; ``mu_x``, ``mu_y`` the
+    floor's), and no contact skipped."""
+    n, n_lower = model.n_contacts, model.n_lower
+    dmu = np.zeros((n, 2, seeds.shape[1]))
+    dmu[:n_lower] = seeds[:2]
+    m, dm, kind = margins(lin.node_status, lin.r, lin.u_local, model.contacts.mu_x, model.contacts.mu_y,
+                          held.reaction, held.contact_motion, dmu)
+    return m, dm, kind, np.zeros(n, dtype=bool)
 
 
 def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation):
     """:func:`_step_derivative` of a step with a frictional pad
-    (:class:`~fe_contact.stepping.pad_sensitivity.PadLinearisation`)."""
+    (:class:`~fe_contact.stepping.pad_sensitivity.PadLinearisation`; a compliant
+    gripper's plate by :func:`~fe_contact.stepping.pad_sensitivity.solve_compliant_pad`)."""
     if "half steps" in report.message:  # split where the whole step failed: the halves' middle is not kept
         return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1} was taken in halves ({report.message}): "
                                          "its derivative through them is not available")
-    lin = PadLinearisation(model, state, report.displacement, np.vstack([report.reaction_local, report.pad_reaction]),
-                           translation, rotation)
+    r = np.vstack([report.reaction_local, report.pad_reaction])
+    if model.gripper.rigid:
+        lin = PadLinearisation(model, state, report.displacement, r, translation, rotation)
+        held = None if lin.failure else lin.solve_pad(d_state.displacement, d_state.pose, d_pose, seeds[:6])
+        d_plate = d_pose[[0, 1, 3]]
+    else:
+        commanded = np.array([*translation, rotation])
+        d_start_pose = np.vstack([d_state.plate[:2], d_state.pose[2], d_state.plate[2]])
+        d_stiffness = np.vstack([seeds[6], seeds[6], seeds[7]])
+        lin, held, d_plate = solve_compliant_pad(model, state, report.displacement, r, commanded,
+                                                 np.array(new_state.plate), d_state.displacement, d_start_pose,
+                                                 d_pose, seeds[:6], d_stiffness)
     if lin.failure:
         return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
-    held = lin.solve_pad(d_state.displacement, d_state.pose, d_pose, seeds[:6])
-    dU, d_plate = held.displacement, d_pose[[0, 1, 3]]
+    dU = held.displacement
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    return new_state, StateDerivative(dU, d_pose, d_plate), _report_outputs(report, new_state), d_out
-
-
-def _compliant(model, state, report, lin, d_state, d_pose, seeds, c):
-    """Derivatives of a compliant-gripper step: the plate balance solved for ``dp``."""
-    J = d_pose.shape[1]
-    p = np.array(report.plate)
-    Jp = upper_pose_jacobian(model, float(p[2]))  # (3 n_up, 4)
-    zeros = np.zeros
-    d_upper = np.hstack([np.outer(Jp[:, 2], d_pose[2]), Jp[:, [0, 1, 3]]])
-    d_start = np.hstack([d_state.displacement, zeros((model.mesh.n_dofs, 3))])
-    held = lin.solve(d_start, d_upper, np.hstack([seeds[:6], zeros((6, 3))]))
-    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
-    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
-    k = model.gripper.stiffness
-    dk = np.vstack([seeds[6], seeds[6], seeds[7]])
-    dc = d_pose[[0, 1, 3]]
-    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * dc + (c - p)[:, None] * dk - dF[:, :J])
-    dU = held.displacement[:, :J] + held.displacement[:, J:] @ dp
-    d_force = held.upper_force[:, :, :J] + held.upper_force[:, :, J:] @ dp
-    return dU, d_force, dp
-
-
-@dataclass(frozen=True)
-class DerivativeCheck:
-    """Exact derivatives against central differences (:func:`check_derivatives`).
-
-    ``analytic``, ``numeric`` (n_steps * 9, n_inputs) as :meth:`RolloutDerivatives.jacobian`;
-    ``error`` the entrywise relative error of the normalised Jacobian; ``inputs``,
-    ``outputs`` the column and row names; ``steps`` the central-difference steps.
-    """
-
-    analytic: np.ndarray
-    numeric: np.ndarray
-    error: np.ndarray
-    inputs: tuple
-    outputs: tuple
-    steps: np.ndarray
-
-    @property
-    def max_error(self) -> float:
-        return float(self.error.max()) if self.error.size else 0.0
-
-    def worst(self) -> str:
-        i, j = np.unravel_index(int(np.argmax(self.error)), self.error.shape)
-        return (f"{self.outputs[i]} / {self.inputs[j]}: exact {self.analytic[i, j]:.9g}, "
-                f"central difference {self.numeric[i, j]:.9g} (error {self.error[i, j]:.2g})")
-
-
-def check_derivatives(model: Model, commands, state: State | None = None, parameters=None,
-                      rel_step: float = 1e-5, floor: float = 1e-4, release: Release | None = None) -> DerivativeCheck:
-    """Compare :func:`rollout_derivatives` with central differences of rollouts
-    (as MuJoCo's ``check_derivatives``).
-
-    Input ``j`` is stepped by ``h_j = rel_step * s_j``, ``s_j`` its typical
-    size (the largest command translation or rotation, ``|value|`` of a
-    parameter, 1 rad for the angle).  The Jacobian is normalised, ``J_ij s_j /
-    o_i`` (``o_i`` the largest value of output kind ``i`` over the rollout:
-    lengths, angles, forces), and the error of an entry is ``|exact - central|
-    / max(|central|, floor * max |central|)``: entries far below the dominant
-    sensitivity are compared at ``floor`` of it.  (Lengths are scaled by at
-    least the largest command translation, angles by at least that over the
-    block's size.)  The step trades the central differences' own ``h^2`` error
-    against the solvers' noise divided by ``h``: 1e-5 suits soft blocks at
-    tight tolerances, a steel block wants 1e-4 (measured on a 3 x 2 x 2 steel
-    block: 1.6e-5, 4.7e-7, 3.7e-6 at 1e-3, 1e-4, 1e-5).  The central differences'
-    rollouts run without Anderson's mixing (``SolverOptions.acceleration`` 0): its
-    discrete choices (mix, plain, reject) make a converged state's error a
-    non-smooth function of the input at the tolerance's level, which the
-    differences divide by ``h`` (measured on a sliding 2 x 2 x 1 block at
-    ``newton_tol`` 1e-13: error 2.4e-6 with it, 3e-7 without; 1.8e-5 and 4e-7 at 1e-12).
-
-    Raises
-    ------
-    ValueError
-        As :func:`rollout_derivatives`, or a rollout that does not converge.
-    """
-    commands, parameters = _check(model, commands, parameters, release)
-    exact = rollout_derivatives(model, commands, state, parameters, release=release)
-    if not exact.converged:
-        raise ValueError(f"the rollout does not converge: {exact.message}")
-    arr = np.array([[c.dx, c.dy, c.dz, c.dtheta] for c in commands])
-    size = max(model.mesh.size)
-    move = max(float(np.abs(arr[:, :3]).max()), size * 1e-4)
-    turn = max(float(np.abs(arr[:, 3]).max()), move / size)
-    values = parameter_values(model)
-    typical = [move, move, move, turn] * len(commands) + [1.0 if p == "angle" else abs(values[p])
-                                                          for p in parameters]
-    typical = np.array(typical)
-    steps = rel_step * typical
-
-    smooth = model if model.options.acceleration == 0 else replace(
-        model, options=replace(model.options, acceleration=0))
-
-    def outputs(j, h):
-        cmds, mdl = list(commands), smooth
-        if j < 4 * len(commands):
-            k, c = divmod(j, 4)
-            cmds[k] = replace(cmds[k], **{COMPONENTS[c]: getattr(cmds[k], COMPONENTS[c]) + h})
-        else:
-            p = parameters[j - 4 * len(commands)]
-            mdl = with_parameters(smooth, **{p: values[p] + h})
-        return _plain(mdl, cmds, state, release)
-
-    numeric = np.column_stack([(outputs(j, h) - outputs(j, -h)).ravel() / (2 * h) for j, h in enumerate(steps)])
-    analytic = exact.jacobian()
-    o = np.abs(exact.outputs)
-    kind = np.array([0, 0, 1, 2, 2, 2, 0, 0, 1])
-    scale = np.maximum([o[:, kind == g].max() for g in range(3)], [move, move / size, 1e-300])[kind]
-    norm = np.tile(scale, exact.outputs.shape[0])[:, None]
-    A, N = analytic * typical / norm, numeric * typical / norm
-    err = np.abs(A - N) / np.maximum(np.abs(N), floor * np.abs(N).max())
-    names_in = tuple(f"{c}[{k}]" for k in range(len(commands)) for c in COMPONENTS) + tuple(parameters)
-    names_out = tuple(f"{o}[{k if k < len(commands) else 'rest'}]" for k in range(exact.outputs.shape[0])
-                      for o in OUTPUTS)
-    return DerivativeCheck(analytic, numeric, err, names_in, names_out, steps)
-
-
-def _plain(model, commands, state, release=None) -> np.ndarray:
-    """Outputs (n_steps, 9) of a plain rollout, and with ``release`` one more
-    row: the rest; ValueError if a step fails."""
-    start = None if state is None else replace(state, tangent=None)
-    out = []
-    for k, (state, report) in enumerate(StepSequence(model, commands, start, release=release)):
-        if not report.converged:
-            raise ValueError(f"central difference: step {k + 1} did not converge: {report.message}")
-        if k < len(commands) or release is None:
-            out.append(_report_outputs(report, state))
-    if release is not None:
-        out.append(_report_outputs(report, state))
-    return np.array(out)
+    return (new_state, StateDerivative(dU, d_pose, d_plate), _report_outputs(report, new_state), d_out,
+            _margins(model, lin, held, seeds))
 
 
 def _report_outputs(report: StepReport, state: State) -> np.ndarray:
@@ -486,5 +490,5 @@ def _report_outputs(report: StepReport, state: State) -> np.ndarray:
     return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])
 
 
-__all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "DerivativeCheck", "applicable_parameters",
-           "check_derivatives", "parameter_values", "rollout_derivatives", "with_parameters"]
+__all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "Transition", "applicable_parameters",
+           "input_sizes", "parameter_values", "rollout_derivatives", "with_parameters"]

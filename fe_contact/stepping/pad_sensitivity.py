@@ -45,6 +45,7 @@ X + U_0 - c - t_0`` (``c`` the face's reference centre).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -57,7 +58,7 @@ from .measure import SLIP_DISPLACEMENT, node_status
 from .model import Model, NodeStatus, State
 from .sensitivity import HeldDerivative, HeldLinearisation
 
-__all__ = ["CONE_EDGE", "PadLinearisation"]
+__all__ = ["CONE_EDGE", "PadLinearisation", "solve_compliant_pad"]
 
 CONE_EDGE = 1e-9
 """A sticking contact whose force is within this fraction of its cone's boundary and that moved is slipping."""
@@ -98,6 +99,7 @@ class PadLinearisation(HeldLinearisation):
         self.slip = slip  # world, for the floor frame's derivative
         self.w = contacts.to_local(slip)
         self.w[:, 0] = gap
+        self.u_local = self.w
         # the floor's as the step reports them; the pad's against every contact's force (an open pad's
         # contacts carry rounding only: separated)
         status = np.concatenate([node_status(model, r[:n_lower], slip[:n_lower, :2]),
@@ -161,7 +163,8 @@ class PadLinearisation(HeldLinearisation):
         x = self.lu.solve(np.vstack([rhs1, rhs2.reshape(3 * n, J)]))
         dU, dr = x[:n_dofs], x[n_dofs:].reshape(n, 3, J)
         d_force = np.einsum("cji,cjk->cik", model.contacts.frames[n_lower:], dr[n_lower:])
-        return HeldDerivative(dU, dr, d_force)
+        du = np.einsum("cij,cjk->cik", model.contacts.frames, dU.reshape(-1, 3, J)[model.contacts.nodes]) + e_local
+        return HeldDerivative(dU, dr, d_force, du)
 
     def _kinematics_derivative(self, d_start, d_pose_start, d_pose):
         """What moves the contacts' kinematics besides ``dU``: the world
@@ -186,3 +189,75 @@ class PadLinearisation(HeldLinearisation):
         normal = np.zeros((nodes.size, J))
         normal[n_lower:] = -np.einsum("ci,ik->ck", model.contacts.frames[n_lower:, 0, :], dt)
         return tangential, normal
+
+    def plate_force_derivative(self, held: HeldDerivative, d_start: np.ndarray, d_plate_start: np.ndarray,
+                                d_turn_end: np.ndarray) -> np.ndarray:
+        """Derivative (3, J') of the pad's generalised force on the block ``F = sum_c
+        D_c^T f_c`` (:func:`solve_compliant_pad`): ``sum D^T df + sum dD^T f``, the
+        moment's arm ``R' rel`` moving with the turn (``R'' = -R``) and with ``rel
+        = X + U_0 - c - p_0``.  ``held`` along J' >= J directions (the first J
+        those of ``d_start``, ``d_plate_start`` (4, J)); ``d_turn_end`` (J',) of
+        the plate's end angle."""
+        model, n_lower = self.model, self.model.n_lower
+        upper = model.contacts.nodes[n_lower:]
+        Jx, J = held.upper_force.shape[2], d_start.shape[1]
+        f = model.contacts.to_world(self.r)[n_lower:, :2]  # (n_pad, 2)
+        df = held.upper_force[:, :2]  # (n_pad, 2, J')
+        rel = (model.mesh.nodes[upper] + self.state.displacement[upper])[:, :2] - model.upper_centre[:2] \
+            - self.state.upper_translation[:2]
+        turn = self.rotation - self.state.upper_rotation
+        c, s = math.cos(turn), math.sin(turn)
+        R, dR = np.array([[c, -s], [s, c]]), np.array([[-s, -c], [c, -s]])
+        d_rel = np.zeros((upper.size, 2, Jx))
+        d_rel[:, :, :J] = d_start.reshape(-1, 3, J)[upper, :2] - d_plate_start[None, :2]
+        d_turn = np.array(d_turn_end, dtype=float)
+        d_turn[:J] -= d_plate_start[3]
+        arm, d_arm = rel @ dR.T, np.einsum("ij,nj,k->nik", -R, rel, d_turn) + np.einsum("ij,njk->nik", dR, d_rel)
+        moment = np.einsum("ni,nik->k", arm, df) + np.einsum("nik,ni->k", d_arm, f)
+        return np.vstack([df[:, 0].sum(axis=0), df[:, 1].sum(axis=0), moment])
+
+
+def solve_compliant_pad(model: Model, state: State, U: np.ndarray, r: np.ndarray, commanded: np.ndarray,
+                        plate: np.ndarray, d_start: np.ndarray, d_plate_start: np.ndarray, d_commanded: np.ndarray,
+                        d_params: np.ndarray, d_stiffness: np.ndarray):
+    """Derivatives of a converged step of a compliant gripper with a frictional
+    pad (:mod:`fe_contact.stepping.pad_load`: the plate's in-plane pose ``p``
+    solved in the step's Newton loop).  The pad is at ``(p_x, p_y, h)``,
+    turned by ``p_theta``, from the state's plate pose; the plate balance
+
+        g(p) = F(p) - k (c - p) = 0,    F = sum_c D_c^T f_c,                       (3,)
+
+    ``f_c`` the pad's world force on the block at contact ``c``, ``D_c = dm_c/dp``
+    the pad point's motion by the plate's pose (``e_x``, ``e_y``, ``R'(p_theta -
+    p_theta,0) rel_c``), ``c`` the commanded pose.  Differentiating it, with
+    three more input directions of the same linearised step for ``dF/dp``,
+
+        (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p.
+
+    ``commanded`` (4,) ``(c_x, c_y, h, c_theta)``, ``plate`` (3,) the converged
+    ``p``; ``d_start`` (n_dofs, J), ``d_plate_start`` (4, J) ``(p_x, p_y, h,
+    p_theta)`` at the start, ``d_commanded`` (4, J) at the end, ``d_params``
+    (6, J), ``d_stiffness`` (3, J) of ``k``.  Returns ``(lin, derivative, dp)``
+    (``derivative`` None if ``lin.failure``)."""
+    origin = replace(state, upper_translation=np.array([*state.plate[:2], state.upper_translation[2]]),
+                     upper_rotation=float(state.plate[2]))
+    lin = PadLinearisation(model, origin, U, r, np.array([plate[0], plate[1], commanded[2]]), float(plate[2]))
+    if lin.failure:
+        return lin, None, None
+    J, zeros = d_start.shape[1], np.zeros
+    d_pose = zeros((4, J + 3))
+    d_pose[2, :J] = d_commanded[2]
+    d_pose[[0, 1, 3], J:] = np.eye(3)
+    held = lin.solve_pad(np.hstack([d_start, zeros((d_start.shape[0], 3))]), np.hstack([d_plate_start, zeros((4, 3))]),
+                         d_pose, np.hstack([d_params, zeros((6, 3))]))
+    dF = lin.plate_force_derivative(held, d_start, d_plate_start, d_pose[3])
+    k, c = np.asarray(model.gripper.stiffness, float), commanded[[0, 1, 3]]
+    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * d_commanded[[0, 1, 3]]
+                         + (c - plate)[:, None] * d_stiffness - dF[:, :J])
+
+    def combined(x):
+        return x[..., :J] + x[..., J:] @ dp
+
+    return lin, HeldDerivative(*(combined(x) for x in (held.displacement, held.reaction, held.upper_force,
+                                                         held.contact_motion))), dp
+

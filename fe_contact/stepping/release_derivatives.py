@@ -1,6 +1,21 @@
 """The release in a rollout's derivatives (:mod:`fe_contact.stepping.derivatives`):
 the steps a release took (a failed step's halves), the heights it chose as
-functions of its path, and the put-down's root.
+functions of its path, and the put-down's and the load steps' roots.
+
+The release is differentiated as the discrete map the schedule took
+(:class:`~fe_contact.stepping.release.ReleaseSchedule`, read back from the
+run: a change of the schedule carries over).  A bonded lift's steps are held
+steps at heights the schedule chose after each report; each height is
+differentiated as the schedule computed it (a lift step ``h + d / n``, ``d``
+the press depth; a put-down target of
+:func:`~fe_contact.stepping.release_path.put_down_target`, a function of the
+heights and forces met, of the weight and of ``E A / H``), and the last one,
+the put-down's root ``h*`` where the plate carries nothing, by the implicit
+function theorem on ``g(h*, p) = F_z = 0``: ``dh*/dp = -g_p / g_h``, ``g_h``
+from one more input column (the step's own height).  The path matters: the
+put-down overshoots below ``h*`` and comes back, and the contacts that slip
+on the way keep it.  A frictional pad's load step finds its height as the
+root of its load (:func:`load_step_root`), differentiated the same way.
 """
 
 from __future__ import annotations
@@ -9,8 +24,9 @@ import numpy as np
 
 from .model import Model, State
 from .sequence import StepSequence
+from .step import half_command, step
 
-__all__ = ["RecordingSequence", "load_step_root", "put_down_root", "release_height_derivative"]
+__all__ = ["RecordingSequence", "load_step_root", "put_down_root", "release_height_derivative", "whole_steps"]
 
 
 class RecordingSequence(StepSequence):
@@ -123,3 +139,22 @@ def load_step_root(d_out: np.ndarray, force_z: int, load: float, d_load: np.ndar
     dh = -g / g[-1]
     dh[-1] = 0.0
     return d_out + np.outer(d_out[:, -1], dh), tuple(x + np.outer(x[:, -1], dh) for x in d_state)
+
+def whole_steps(model, parts):
+    """``parts`` (start, state, report) with every step that a frictional pad
+    took in halves (:func:`~fe_contact.stepping.step.step`, its whole command
+    having failed) replaced by its halves, taken again (the same steps), or
+    None if one does not converge."""
+    out = []
+    for start, end, report in parts or []:
+        if "half steps" not in report.message:
+            out.append((start, end, report))
+            continue
+        half = half_command(report.command)
+        middle, first = step(model, start, half)
+        finish, second = step(model, middle, half)
+        if not (first.converged and second.converged):
+            return None
+        out += whole_steps(model, [(start, middle, first), (middle, finish, second)]) or [None]
+    return None if None in out else out
+

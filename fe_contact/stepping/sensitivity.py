@@ -71,11 +71,15 @@ class HeldDerivative:
         ``dr`` local, N per unit input.
     upper_force : ndarray, shape (n_upper, 3, J)
         Derivative of the nodal forces ``(f_int - f_ext)`` of the upper face, N per unit input.
+    contact_motion : ndarray, shape (n_contacts, 3, J), or None
+        ``du`` local: the derivative of each contact's gap and tangential
+        increment, m per unit input (for :mod:`~fe_contact.stepping.transitions`).
     """
 
     displacement: np.ndarray
     reaction: np.ndarray
     upper_force: np.ndarray
+    contact_motion: np.ndarray | None = None
 
 
 class HeldLinearisation:
@@ -104,7 +108,7 @@ class HeldLinearisation:
     """
 
     def __init__(self, model: Model, start: np.ndarray, U: np.ndarray, r: np.ndarray, node_status: np.ndarray):
-        self.model, self.U, self.r = model, U, r
+        self.model, self.U, self.r, self.node_status = model, U, r, node_status
         self.failure = ""
         f_int, K, _ = held_loading(model).tangent(model, U)
         self.f_int = f_int
@@ -119,6 +123,7 @@ class HeldLinearisation:
         self.w = U[lower] - start[lower]
         self.w[:, 2] = model.mesh.nodes[lower, 2] + U[lower, 2]
         u_t = self.w[:, :2] @ T[1:, :2].T
+        self.u_local = self.w @ T.T  # the gap and the tangential increments, local
         A, B, self.B_mu = law_jacobian(node_status == NodeStatus.SEPARATED, node_status == NodeStatus.SLIP, r,
                                        u_t, model.friction.mu_x, model.friction.mu_y)
         n = model.n_contacts
@@ -163,7 +168,10 @@ class HeldLinearisation:
         dU[model.free_dofs] = finish(np.einsum("ji,cjk->cik", T, dr))
         dU[model.upper_dofs] = d_upper
         d_force = (self.K_p @ dU + f_p[model.upper_dofs]).reshape(-1, 3, J)
-        return HeldDerivative(dU, dr, d_force)
+        dw = dU[model.lower_dofs.ravel()].reshape(n, 3, J) - d_start[model.lower_dofs.ravel()].reshape(n, 3, J)
+        dw[:, 2] += d_start[model.lower_dofs[:, 2]]  # the gap is total
+        du = np.einsum("ij,cjk->cik", T, dw) + np.einsum("ij,cj,k->cik", dT, self.w, d_alpha)
+        return HeldDerivative(dU, dr, d_force, du)
 
     def solve_adjoint(self, lam_U: np.ndarray, lam_force: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The transpose of :meth:`solve` (reverse mode): for the weights
@@ -313,3 +321,35 @@ def lower_pose_derivative(model: Model, U: np.ndarray, dU: np.ndarray) -> np.nda
     d_dot = np.einsum("n,nk->k", w * p[:, 0], d[:, 0]) + np.einsum("n,nk->k", w * p[:, 1], d[:, 1])
     d_yaw = (dot * d_cross - cross * d_dot) / (dot**2 + cross**2)
     return np.vstack([d_centroid, d_yaw])
+
+def solve_compliant(model: Model, report, lin: HeldLinearisation, d_start: np.ndarray, d_pose: np.ndarray,
+                    seeds: np.ndarray, c: np.ndarray) -> tuple[HeldDerivative, np.ndarray]:
+    """Derivatives of a compliant-gripper step (:mod:`fe_contact.stepping.gripper`):
+    the plate balance ``g(p) = F(p) - k (c - p) = 0`` differentiated,
+
+        (dF/dp + diag k) dp = k dc + (c - p) dk - dF/d(input)|_p,
+
+    with ``dF/dp`` from three more directions of the same held step.  ``d_start``
+    (n_dofs, J), ``d_pose`` (4, J) the commanded pose's, ``seeds`` (8, J) the
+    parameters' (the last two the stiffnesses), ``c`` (3,) the commanded plate pose.
+    Returns the held step's derivative with ``dp`` eliminated, and ``dp`` (3, J)."""
+    J = d_pose.shape[1]
+    p = np.array(report.plate)
+    Jp = upper_pose_jacobian(model, float(p[2]))  # (3 n_up, 4)
+    zeros = np.zeros
+    d_upper = np.hstack([np.outer(Jp[:, 2], d_pose[2]), Jp[:, [0, 1, 3]]])
+    d_start = np.hstack([d_start, zeros((model.mesh.n_dofs, 3))])
+    held = lin.solve(d_start, d_upper, np.hstack([seeds[:6], zeros((6, 3))]))
+    f_upper = lin.f_int[model.upper_dofs].reshape(-1, 3)
+    dF = plate_wrench_derivative(model, report.displacement, f_upper, held.displacement, held.upper_force)
+    k = model.gripper.stiffness
+    dk = np.vstack([seeds[6], seeds[6], seeds[7]])
+    dc = d_pose[[0, 1, 3]]
+    dp = np.linalg.solve(dF[:, J:] + np.diag(k), k[:, None] * dc + (c - p)[:, None] * dk - dF[:, :J])
+
+    def combined(x):
+        return x[..., :J] + x[..., J:] @ dp
+
+    return HeldDerivative(*(combined(x) for x in (held.displacement, held.reaction, held.upper_force,
+                                                 held.contact_motion))), dp
+

@@ -89,6 +89,10 @@ class Correction:
         """The rollout of ``commands`` (with the Jacobian on the planning mesh under ``exact_gradient``)."""
         if self.method == "exact_gradient" and phase == "planning":
             roll, self.jacobian = fe.rollout_with_jacobian(commands)
+            if roll.nondifferentiable:  # a contact at a transition: no Gauss-Newton step from here
+                self.jacobian = None
+                if self.log is not None:
+                    self.log(f"no exact gradient at these commands: {roll.nondifferentiable}")
         else:  # on the verification mesh: the planning mesh's Jacobian at its last commands
             roll = fe.rollout(commands)
         self.timings[f"{phase}_rollouts"] += roll.wall_time
@@ -117,6 +121,7 @@ class Correction:
             modifier_used=tuple(float(v) for v in used_modifier), position_error=pos_err,
             yaw_error_deg=math.degrees(yaw_err), model_consistency=model_consistency(self.planner.params, solution),
             rollout_wall_s=roll.wall_time, nlp_wall_s=solution.wall_time if resolve else 0.0, gauss_newton=newton,
+            not_differentiable=roll.nondifferentiable,
         )
         self.iterations.append(it)
         if self.log is not None:

@@ -92,8 +92,8 @@ class PlanSession:
         self._last: tuple[NlpSolution, np.ndarray, int] | None = None  # solution, modifier, pushes since
         self.refinement = refinement
         if refinement == "exact_gradient" and not all(fe.exact for fe in (self.coarse, self.fine) if fe is not None):
-            self.refinement = "modifier"  # a release after the commands, or a frictional pad: no derivatives yet
-            self._say("refinement: no exact gradient with a release or a frictional pad; modifier adaptation")
+            self.refinement = "modifier"  # a release with a retreat: not differentiated
+            self._say("refinement: no exact gradient through a release with a retreat; modifier adaptation")
         self._calibrate(spec)
         self.advance(after)
         self.build_time = time.perf_counter() - t0
@@ -244,9 +244,10 @@ def plan(scenario: Scenario, spec: PlanSpec | None = None, log=None, after=(), b
         False leaves ``result.naive`` None and saves that rollout.
     refinement : str
         The FE correction (:data:`REFINEMENTS`): ``"modifier"`` adaptation, or
-        ``"exact_gradient"`` (Gauss-Newton with the exact Jacobian; modifier adaptation
-        where the rollouts have no derivatives: a release after the commands, a
-        frictional pad).  ``result.refinement`` says which ran.
+        ``"exact_gradient"`` (Gauss-Newton with the exact Jacobian, through the release
+        for a rest target; modifier adaptation where the rollouts have no derivatives:
+        a release with a retreat).  ``result.refinement`` says which ran; an iteration
+        whose rollout had no derivative (a contact at a transition) says why.
 
     Raises
     ------

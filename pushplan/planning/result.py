@@ -44,6 +44,7 @@ class Iteration:
     rollout_wall_s: float
     nlp_wall_s: float
     gauss_newton: bool = False  # the commands are a Gauss-Newton step on the FE model (exact gradient)
+    not_differentiable: str = ""  # the rollout's exact gradient does not exist here: why (a contact at a transition)
 
     def to_dict(self) -> dict:
         return {**asdict(self), "modifier_used": list(self.modifier_used)}

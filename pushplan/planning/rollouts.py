@@ -51,6 +51,9 @@ class Rollout:
         commanded position and the block's upper-face centroid, m: how far a
         frictional pad slid on the upper face (0 for a bonded pad, which the
         upper face follows; the reduced model assumes it does).
+    nondifferentiable : str
+        For a rollout with derivatives: why some of them do not exist (a contact
+        at a transition of the contact law, :mod:`fe_contact.stepping.transitions`), or "".
     """
 
     commands: np.ndarray
@@ -62,6 +65,7 @@ class Rollout:
     rest: np.ndarray | None = None
     release_reports: tuple[StepReport, ...] = ()
     pad_slip: float = 0.0
+    nondifferentiable: str = ""
 
     def final(self, target_state: str = "loaded") -> np.ndarray:
         """The final lower-face pose (3,) loaded (after the last command) or at rest."""
@@ -157,34 +161,47 @@ class FeRollouts:
 
     @property
     def exact(self) -> bool:
-        """Whether :meth:`rollout_with_jacobian` applies: no release after the commands
-        (release steps are not differentiated yet) and a bonded pad."""
-        return self.release is None and getattr(self.model, "pad", None) is None
+        """Whether :meth:`rollout_with_jacobian` applies: no release after the
+        commands, or one straight up (a release with a retreat is not differentiated)."""
+        return self.release is None or not any(self.release.away)
 
     def rollout_with_jacobian(self, commands: np.ndarray) -> tuple[Rollout, np.ndarray]:
-        """:meth:`rollout` without a release, and the exact Jacobian (3, K, 3) of the
-        final lower-face pose ``(x, y, yaw)`` with respect to the commands ``(dx, dy,
-        dtheta)`` (:func:`fe_contact.rollout_derivatives`, the same converged steps).
-        ``upper`` holds the plate's pose (the upper face's, for the rigid gripper).
+        """:meth:`rollout` (with the release, if any) and the exact Jacobian (3, K, 3)
+        of the final lower-face pose ``(x, y, yaw)``, the rest's after a release, with
+        respect to the commands ``(dx, dy, dtheta)`` (:func:`fe_contact.rollout_derivatives`,
+        the same converged steps).  ``upper`` holds the plate's pose (the upper face's,
+        for the rigid gripper).  Where a derivative does not exist (a contact at a
+        transition of the contact law) its entries are NaN and the rollout's
+        ``nondifferentiable`` says why.
 
         Raises
         ------
         PlanningError
-            An FE step did not converge.
+            An FE step did not converge, or the block did not settle after the release.
         """
         pressed = self.pressed()
         t0 = time.perf_counter()
-        result = rollout_derivatives(self.model, planar_commands(commands), state=pressed.state, parameters=())
+        result = rollout_derivatives(self.model, planar_commands(commands), state=pressed.state, parameters=(),
+                                     release=self.release)
         if not result.converged:
             raise PlanningError(f"FE rollout on the {self.label} mesh failed ({result.status.value}): {result.message}")
-        start = pressed.reports[-1]
-        lower = np.vstack([[*start.lower_centroid[:2], start.lower_yaw], result.outputs[:, :3]])
-        upper = np.vstack([pressed.state.plate, [r.plate for r in result.reports]])
+        if result.rest is not None and not result.rest.settled:
+            raise PlanningError(f"FE rollout on the {self.label} mesh: the block did not settle after the release: "
+                                f"{result.rest.reason}")
+        K, start = len(commands), pressed.reports[-1]
+        lower = np.vstack([[*start.lower_centroid[:2], start.lower_yaw], result.outputs[:K, :3]])
+        upper = np.vstack([pressed.state.plate, [r.plate for r in result.reports[:K]]])
+        rest = None if self.release is None else result.outputs[-1, :3].copy()
         if self.relative:
-            lower, upper = lower - lower[0], upper - upper[0]
+            origin = lower[0].copy()
+            lower, upper = lower - origin, upper - upper[0]
+            rest = None if rest is None else rest - origin
         self.count += 1
-        roll = Rollout(np.array(commands, float), lower, upper, tuple(result.reports),
-                       tuple(StepSummary.from_report(r) for r in result.reports), time.perf_counter() - t0)
+        reports = tuple(result.reports[:K])
+        commanded = pressed.state.upper_translation[:2] + np.cumsum(np.asarray(commands, float)[:, :2], axis=0)
+        roll = Rollout(np.array(commands, float), lower, upper, reports,
+                       tuple(StepSummary.from_report(r) for r in reports), time.perf_counter() - t0, rest,
+                       tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable())
         return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 
     def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
@@ -218,7 +235,12 @@ class FeRollouts:
 
     def _pad_slip(self, states, reports) -> float:
         """:attr:`Rollout.pad_slip` of loaded steps' end ``states`` and ``reports``, m."""
+        return self._pad_slip_of([s.upper_translation[:2] for s in states], reports)
+
+    def _pad_slip_of(self, commanded, reports) -> float:
+        """:attr:`Rollout.pad_slip` of the commanded positions ``(x, y)`` of the pad
+        after each loaded step and their ``reports``, m."""
         if self.model.pad is None or not reports:
             return 0.0
-        return float(max(np.hypot(*(s.upper_translation[:2] - r.upper_centroid[:2]))
-                         for s, r in zip(states, reports, strict=True)))
+        return float(max(np.hypot(*(np.asarray(c) - r.upper_centroid[:2]))
+                         for c, r in zip(commanded, reports, strict=True)))
