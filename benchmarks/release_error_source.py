@@ -11,8 +11,8 @@ of ``n``: one step from the reference's state at ``P_{k-1}`` to ``P_k`` against 
 reference's state at ``P_k``, as the lower face's centroid distance in units of the
 loaded lag (the local error), and the number of contacts (floor and pad) whose
 state changes between the reference's steps inside it.  Also the rest after ``n``,
-``4 n`` load steps and the reference's, in units of the lag (the global error and its
-order).
+``4 n`` load steps (backward Euler and the midpoint rule) against the reference's, in units
+of the lag (the global error).  Every step here is backward Euler (``Release.scheme``).
 
     python benchmarks/release_error_source.py [--n 16] [--reference 256] [--ratios 0.01 1 100]
 
@@ -47,7 +47,8 @@ def analyse(ratio: float, n: int, reference: int) -> dict:
               quadrature=2, pad=Friction(FLOOR[0] * ratio, FLOOR[1] * ratio, FLOOR[2]))
     state, pushes = run(m, [Command(dz=-4e-4), PUSH, PUSH])
     lag = float(np.linalg.norm(pushes[-1].lag))
-    sequence = StepSequence(m, (), state, release=Release("lift", reference, max_steps=10 * reference),
+    sequence = StepSequence(m, (), state, release=Release("lift", reference, max_steps=10 * reference,
+                                                          scheme="backward_euler"),
                             loaded=pushes[-1], consume_start=False)
     states, reports = [state], [pushes[-1]]
     for s, r in sequence:
@@ -66,9 +67,11 @@ def analyse(ratio: float, n: int, reference: int) -> dict:
                       "state_changes": changes, "slipping": int((contact_state(m, end.reaction) == 2).sum()),
                       "newton": one.newton_iterations})
     rests = {}
-    for steps_ in (n, 4 * n):
-        _, release, _ = release_to_rest(m, state, Release("lift", steps_, max_steps=10 * steps_ + 100), pushes[-1])
-        rests[steps_] = release[-1].lower_centroid[:2]
+    for scheme in ("backward_euler", "midpoint"):
+        for steps_ in (n, 4 * n):
+            _, release, _ = release_to_rest(m, state, Release("lift", steps_, max_steps=10 * steps_ + 100,
+                                                              scheme=scheme), pushes[-1])
+            rests[f"{scheme}_{steps_}"] = release[-1].lower_centroid[:2]
     ref_rest = reports[-1].lower_centroid[:2]
     return {"ratio": ratio, "n": n, "reference": reference, "lag": lag, "contacts": int(m.n_contacts), "steps": steps,
             "sum_local_error": float(sum(s["local_error"] for s in steps)),

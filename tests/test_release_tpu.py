@@ -17,9 +17,10 @@ from pushplan.planning.push_model import PushModel
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "tpu_release.toml"
 WEIGHT_RTOL = 1e-6  # issue 39: N = W to 1e-6 at rest
-COST_REGRESSION = 3.0
-"""Release / push Newton iterations at most this (measured 2.65 with the default 16 load steps): a guard
-against a release that costs more, NOT issue 39's bound (at most 1): that bound is not met (docs/release.md)."""
+COST_REGRESSION = 3.5
+"""Release / push Newton iterations at most this (measured 3.2 with the default 16 midpoint load steps, 2.65 with
+backward Euler): a guard against a release that costs more, NOT issue 39's bound (at most 1): that bound is not
+met (docs/release.md)."""
 
 
 def test_the_tpu_release_settles_and_its_rise_after_the_pad_opened_is_free(tmp_path):

@@ -164,6 +164,12 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
     return commands, parameters
 
 
+def _differentiated(release: Release | None) -> Release | None:
+    """The release whose derivatives are built: a frictional pad's load steps by
+    backward Euler (``Release.scheme``; the midpoint rule's extrapolated steps are not differentiated yet)."""
+    return None if release is None else replace(release, scheme="backward_euler")
+
+
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
                         start: RolloutDerivatives | None = None, release: Release | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
@@ -177,7 +183,10 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
     have one more row: the rest, after the release (module docstring: each
     height differentiated as the schedule chose it, the put-down's root by the
-    implicit function theorem on ``F_z = 0``).
+    implicit function theorem on ``F_z = 0``).  A frictional pad's load steps
+    are taken and differentiated as backward Euler (``Release.scheme``; the
+    midpoint rule's extrapolated steps are not differentiated yet): the rest
+    row is that release's.
 
     Raises
     ------
@@ -190,6 +199,7 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
             raise ValueError("start must be a converged RolloutDerivatives")
         state, parameters = start.state, start.parameters
     commands, parameters = _check(model, commands, parameters, release)
+    release = _differentiated(release)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     K, n_par = len(commands), len(parameters)
@@ -425,6 +435,7 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
         As :func:`rollout_derivatives`, or a rollout that does not converge.
     """
     commands, parameters = _check(model, commands, parameters, release)
+    release = _differentiated(release)
     exact = rollout_derivatives(model, commands, state, parameters, release=release)
     if not exact.converged:
         raise ValueError(f"the rollout does not converge: {exact.message}")
