@@ -5,12 +5,13 @@ release settles with N = W, the rise after the pad opened costs nothing, and the
 runs around it (a finer-mesh truth, rollouts with their Jacobian) finish."""
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fe_contact import release_to_rest, run
+from fe_contact import Command, release_to_rest, run
 from pushplan.cli import main
 from pushplan.config import load_scenario
 from pushplan.planning.push_model import PushModel
@@ -53,12 +54,13 @@ def test_the_tpu_truth_on_a_finer_mesh_and_its_rollouts_with_jacobian_finish():
     with finite derivatives (the default Newton cap: issue 39 item 7)."""
     scenario = load_scenario(SCENARIO)
     fine = scenario.model(tuple(2 * e for e in scenario.elements))
-    push = PushModel.from_scenario(scenario)
-    state, pushes = run(fine, push.press)
+    state, pushes = run(fine, scenario.commands)
     assert all(r.converged for r in pushes), pushes[-1].message
     _, release, rest = release_to_rest(fine, state, scenario.release, pushes[-1])
     assert rest.settled, rest.reason
     assert release[-1].normal_force == pytest.approx(fine.weight, rel=WEIGHT_RTOL)
-    jac = push.rollout_with_jacobian(np.array([[1e-3, 0.0, 0.0], [0.0, 1e-3, 0.0]]))
+    push = PushModel(scenario.model(), [Command(dz=-5e-4)])  # the scenario's press, then its pushes planned
+    jac = push.rollout_with_jacobian(np.array([[1e-3 * math.cos(math.radians(30)), 1e-3 * math.sin(math.radians(30)),
+                                                0.0]] * 2 + [[0.0, 1e-3, 0.0]]))
     assert np.all(np.isfinite(jac.poses)) and np.all(np.isfinite(jac.d_commands))
-    assert np.abs(jac.d_commands[1, 1, 1, 1]) > 0  # the second push moves the block along y
+    assert np.abs(jac.d_commands[2, 1, 2, 1]) > 0  # the last push moves the block along y

@@ -165,8 +165,7 @@ def _check(model, commands, parameters, release=None) -> tuple[list, tuple]:
 
 
 def _differentiated(release: Release | None) -> Release | None:
-    """The release whose derivatives are built: a frictional pad's load steps by
-    backward Euler (``Release.scheme``; the midpoint rule's extrapolated steps are not differentiated yet)."""
+    """The release differentiated: a pad's load steps by backward Euler (the midpoint's are not, yet)."""
     return None if release is None else replace(release, scheme="backward_euler")
 
 
@@ -183,10 +182,8 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
     have one more row: the rest, after the release (module docstring: each
     height differentiated as the schedule chose it, the put-down's root by the
-    implicit function theorem on ``F_z = 0``).  A frictional pad's load steps
-    are taken and differentiated as backward Euler (``Release.scheme``; the
-    midpoint rule's extrapolated steps are not differentiated yet): the rest
-    row is that release's.
+    implicit function theorem on ``F_z = 0``); a pad's load steps by backward
+    Euler (``Release.scheme``, :func:`_differentiated`): the rest row is that release's.
 
     Raises
     ------

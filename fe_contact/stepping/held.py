@@ -8,6 +8,8 @@ and :mod:`~fe_contact.stepping.release`, below all three.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..fem.loads import NO_LOADING, Loading
@@ -98,3 +100,14 @@ def next_state(state: State, eq: Equilibrium, translation: np.ndarray, rotation:
         tangent=TangentCache(eq.tangent),
         **changes,
     )
+
+
+def joined_report(state: State, first: StepReport, second: StepReport, command: Command, message: str,
+                  combine=sum) -> StepReport:
+    """The report of a step taken in two parts from ``state``: the second
+    part's, with the whole ``command``, both parts' slip increments, their
+    Newton iterations combined by ``combine`` (``sum``: the cost; ``max``: the
+    longest Newton loop), and ``message``."""
+    return replace(second, command=command, step_index=state.step_index + 1,
+                   newton_iterations=combine((first.newton_iterations, second.newton_iterations)),
+                   slip_increment=first.slip_increment + second.slip_increment, message=message)

@@ -45,7 +45,7 @@ import numpy as np
 
 from ..fem.elasticity import internal_force
 from .command import Command, PadLoad
-from .held import pad_loading, pad_motion
+from .held import joined_report, pad_loading, pad_motion
 from .measure import SEPARATION_FORCE, measure
 from .model import Model, State
 from .newton import Equilibrium, equilibrium
@@ -362,8 +362,6 @@ def midpoint_load_step(model: Model, state: State, command: PadLoad, step_functi
     element, the half step stands and a second backward-Euler step goes on to
     ``P_b``: at most two step solves per load step.  Returns ``(State,
     StepReport)``."""
-    from .step import joined_report  # the step module is above this one
-
     t0 = time.perf_counter()
     start = float(state.reaction[model.n_lower:, 0].sum())
     middle, first = step_function(model, state, replace(command, load=0.5 * (start + command.load)), consume=consume)
