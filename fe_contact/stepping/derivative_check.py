@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .derivatives import (COMPONENTS, OUTPUTS, _check, _report_outputs, input_sizes, parameter_values,
+from .derivatives import (COMPONENTS, OUTPUTS, _check, _differentiated, _report_outputs, input_sizes, parameter_values,
                           rollout_derivatives, with_parameters)
 from .model import Model, State
 from .release import Release
@@ -71,6 +71,7 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
         As :func:`~fe_contact.stepping.derivatives.rollout_derivatives`, or a rollout that does not converge.
     """
     commands, parameters = _check(model, commands, parameters, release)
+    release = _differentiated(release)  # the differences of the release that is differentiated
     exact = rollout_derivatives(model, commands, state, parameters, release=release)
     if not exact.converged:
         raise ValueError(f"the rollout does not converge: {exact.message}")

@@ -231,6 +231,11 @@ def _start(model, commands, parameters, start, release) -> _Run:
     return _Run(d_state, seeds, typical, np.zeros((rows, 9)), np.zeros((rows, 9, J)), [], [])
 
 
+def _differentiated(release: Release | None) -> Release | None:
+    """The release differentiated: a pad's load steps by backward Euler (the midpoint's are not, yet)."""
+    return None if release is None else replace(release, scheme="backward_euler")
+
+
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
                         start: RolloutDerivatives | None = None, release: Release | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
@@ -244,7 +249,9 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
     have one more row: the rest, after the release (module docstring: each
     height differentiated as the schedule chose it, the put-down's root by the
-    implicit function theorem on ``F_z = 0``), and ``rest`` says whether it settled.
+    implicit function theorem on ``F_z = 0``), and ``rest`` says whether it settled; a
+    pad's load steps by backward Euler (``Release.scheme``, :func:`_differentiated`): the rest
+    row is that release's.
 
     Raises
     ------
@@ -257,6 +264,7 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
             raise ValueError("start must be a converged RolloutDerivatives")
         state, parameters = start.state, start.parameters
     commands, parameters = _check(model, commands, parameters, release)
+    release = _differentiated(release)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     run = _start(model, commands, parameters, start, release)

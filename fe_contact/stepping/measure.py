@@ -60,7 +60,6 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     mesh, lower, T = model.mesh, model.mesh.lower, model.frame
     U, n_lower = eq.displacement, model.n_lower
     r = eq.reaction[:n_lower]  # the floor's; a frictional pad's follow
-    pad_world = model.contacts.to_world(eq.reaction)[n_lower:]
     contact_world = r @ T
     slip_inc = U[lower, :2] - state.displacement[lower, :2]
     du_local = slip_inc @ T[1:, :2].T  # (n_lower, 2) in (t_x, t_y)
@@ -68,19 +67,7 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     lower_c = face_centroid_displacement(U[lower], model.lower_area)
     X_lower = mesh.nodes[lower]
     f_int = eq.internal_force
-    upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
-    if model.pad is not None:
-        upper_force = pad_world.sum(axis=0)
-        extra.setdefault("gripper_force", plate_wrench(model, U, pad_world))
-    upper_force = extra.pop("upper_force", upper_force)
-    total_contact = contact_world.sum(axis=0)
-    force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
-    balance = total_contact + upper_force
-    spring_f = loading.spring_force(U)
-    if model.body_force is not None or loading.spring is not None:
-        balance = balance - spring_f.reshape(-1, 3).sum(axis=0)
-        balance[2] -= model.weight
-    eq_err = float(np.linalg.norm(balance) / force_scale) if force_scale > 0 else 0.0
+    upper_force, total_contact, eq_err, spring_f = _balance(model, eq, contact_world, loading, extra)
     logs = eq.iterations
     return StepReport(
         status=eq.status,
@@ -123,6 +110,30 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         regularisation_force=float(np.linalg.norm(spring_f)),
         pad_reaction=eq.reaction[n_lower:],
     )
+
+
+def _balance(model: Model, eq: Equilibrium, contact_world: np.ndarray, loading: Loading, extra: dict):
+    """The gripper's force on the block (3,), N (the drive's reaction, or a
+    frictional pad's contact forces; ``extra["upper_force"]`` if given), the
+    floor's total force (3,), N, the relative equilibrium error of the module
+    docstring and the regularising springs' force (n_dofs,), N.  Sets
+    ``extra["gripper_force"]`` for a frictional pad (its plate wrench) unless given."""
+    U, n_lower, f_int = eq.displacement, model.n_lower, eq.internal_force
+    upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+    if model.pad is not None:
+        pad_world = model.contacts.to_world(eq.reaction)[n_lower:]
+        upper_force = pad_world.sum(axis=0)
+        extra.setdefault("gripper_force", plate_wrench(model, U, pad_world))
+    upper_force = extra.pop("upper_force", upper_force)
+    total_contact = contact_world.sum(axis=0)
+    force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
+    balance = total_contact + upper_force
+    spring_f = loading.spring_force(U)
+    if model.body_force is not None or loading.spring is not None:
+        balance = balance - spring_f.reshape(-1, 3).sum(axis=0)
+        balance[2] -= model.weight
+    eq_err = float(np.linalg.norm(balance) / force_scale) if force_scale > 0 else 0.0
+    return upper_force, total_contact, eq_err, spring_f
 
 
 def _drive_wrench(model: Model, U: np.ndarray, f_eff) -> np.ndarray:

@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -109,74 +109,137 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
     ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`, or a
     :class:`~fe_contact.stepping.pad_load.LoadDrive` (the pad's height solved with its load)."""
-    opts = model.options
-    tangent = state.tangent.value if model.reuses_tangent else None
-    if tangent is not None and tangent.n_free != model.free_dofs.size:
-        tangent = None  # cached before the gripper let go: other free dofs
-    workspace = tangent.workspace.copy() if tangent is not None else None
-    anderson = _anderson(model, loading, tangent)
+    loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper)
     r = np.array(state.reaction, dtype=float)
-    timings, logs = dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0), []
-    status, message, prev_res, rel_res = Status.NEWTON_NOT_CONVERGED, "", math.inf, math.inf
-    n_tangents, at_start, scale0, f_int, min_det = 0, False, 0.0, None, math.nan
-    history, last_step = [], math.inf  # plain iterates' relative out-of-balance forces; the last correction, m
-    for it in range(opts.newton_max_iter + 1):
-        need_tangent = tangent is None or not model.reuses_tangent
-        mixed = anderson is not None and anderson.mixed  # no convergence test at a mix
-        if loading.proximal:
-            loading.anchor[:] = U.ravel()  # the springs damp the correction from here and pull nowhere
-        with _timed(timings, "assembly"):
-            f_int, K, min_det = _forces(model, state, U, need_tangent, it, loading)
-        failure = _breakdown(f_int, min_det, it)
-        if failure is None:
-            contact_world, f_contact = _contact_forces(model, r)
-            scale0 = _command_force_scale(model, state, U, f_contact, loading) if it == 0 else scale0
-            R, rel_res = _out_of_balance(model, f_int, f_contact, contact_world, scale0)
-        if mixed and (failure is not None or rel_res >= prev_res) and it < opts.newton_max_iter:
-            U, r = anderson.fall_back()  # the mix did no good: back to the plain iterate
+    for it in range(model.options.newton_max_iter + 1):
+        mixed = loop.anderson is not None and loop.anderson.mixed  # no convergence test at a mix
+        R, f_contact, failure = loop.balance(U, r, it)
+        if mixed and (failure is not None or loop.rel_res >= loop.prev_res) and it < model.options.newton_max_iter:
+            U, r = loop.anderson.fall_back()  # the mix did no good: back to the plain iterate
             continue
+        if failure is None:
+            failure = None if mixed else _verdict(model.options, it, loop.rel_res, loop.history, loop.last_step,
+                                                 float(np.abs(U).max()))
         if failure is not None:
-            status, message = failure
+            loop.status, loop.message = failure
             break
-        verdict = None if mixed else _verdict(opts, it, rel_res, history, last_step, float(np.abs(U).max()))
-        if verdict is not None:
-            status, message = verdict
+        failure = loop.refresh(U, it, mixed)
+        if failure is None:
+            U, r, failure = loop.correct(U, R, r, f_contact, it, mixed)
+        if failure is not None:
+            loop.status, loop.message = failure
             break
-        need_tangent = need_tangent or refresh_due(tangent, at_start, it, rel_res, prev_res, opts, mixed)
+    return loop.result(U, r)
+
+
+@dataclass
+class _Loop:
+    """The state of :func:`equilibrium`'s Newton loop between its stages: the
+    tangent and its workspace, Anderson's mixing, the iterates' forces and the
+    verdict's history (plain iterates' relative out-of-balance forces, the last
+    correction, m)."""
+
+    model: Model
+    state: State
+    loading: Loading
+    consume: bool
+    hook: object
+    gripper: object
+    tangent: Tangent | None
+    workspace: object
+    anderson: Anderson | None
+    timings: dict = field(default_factory=lambda: dict.fromkeys(("assembly", "tangent", "local", "solve"), 0.0))
+    logs: list = field(default_factory=list)
+    history: list = field(default_factory=list)
+    status: Status = Status.NEWTON_NOT_CONVERGED
+    message: str = ""
+    prev_res: float = math.inf
+    rel_res: float = math.inf
+    last_step: float = math.inf
+    n_tangents: int = 0
+    at_start: bool = False
+    scale0: float = 0.0
+    f_int: np.ndarray | None = None
+    min_det: float = math.nan
+    K: object = None
+    need_tangent: bool = False
+    plain: bool = True
+
+    @classmethod
+    def start(cls, model, state, loading, consume, hook, gripper) -> "_Loop":
+        """The loop's start: the tangent cached in ``state`` if it fits (the same free dofs)."""
+        tangent = state.tangent.value if model.reuses_tangent else None
+        if tangent is not None and tangent.n_free != model.free_dofs.size:
+            tangent = None  # cached before the gripper let go: other free dofs
+        workspace = tangent.workspace.copy() if tangent is not None else None
+        return cls(model, state, loading, consume, hook, gripper, tangent, workspace,
+                   _anderson(model, loading, tangent))
+
+    def balance(self, U, r, it: int):
+        """Forces at the iterate ``(U, r)``: the out-of-balance force of the free dofs
+        ``R`` (sets ``rel_res``), the contact force vector, and a breakdown or None."""
+        model = self.model
+        self.need_tangent = self.tangent is None or not model.reuses_tangent
+        if self.loading.proximal:
+            self.loading.anchor[:] = U.ravel()  # the springs damp the correction from here and pull nowhere
+        with _timed(self.timings, "assembly"):
+            self.f_int, self.K, self.min_det = _forces(model, self.state, U, self.need_tangent, it, self.loading)
+        failure = _breakdown(self.f_int, self.min_det, it)
+        if failure is not None:
+            return None, None, failure
+        contact_world, f_contact = _contact_forces(model, r)
+        if it == 0:
+            self.scale0 = _command_force_scale(model, self.state, U, f_contact, self.loading)
+        R, self.rel_res = _out_of_balance(model, self.f_int, f_contact, contact_world, self.scale0)
+        return R, f_contact, None
+
+    def refresh(self, U, it: int, mixed: bool):
+        """A new tangent at ``U`` when one is needed or due; a failure ``(status, message)`` or None."""
+        opts = self.model.options
+        self.need_tangent = self.need_tangent or refresh_due(self.tangent, self.at_start, it, self.rel_res,
+                                                             self.prev_res, opts, mixed)
         # a plain iterate next if the last contraction says it passes the test
-        plain = it == 0 or (it >= 2 and rel_res**2 <= opts.newton_tol * prev_res)
-        prev_res = rel_res
-        if need_tangent:
-            # the old factors go before the new ones come (and before the
-            # assembly's temporaries: 1.8 GB at 2.3e5 dofs)
-            tangent = workspace = None
-            handed, K = [K], None
-            tangent, fallback, failure = _new_tangent(model, state, U, handed, consume, it, timings, loading)
-            if tangent is None:
-                status, message = Status.TANGENT_SINGULAR, failure
-                break
-            at_start = at_start or fallback
-            n_tangents += 1
-            workspace = tangent.workspace.copy()
-            if anderson is not None:
-                anderson.restart(mixing=it == 0)  # another map; taken at an iterate, nearly Newton's
-        local, dU_free, failure = _contact_correction(model, state, tangent, workspace, U, R, r, it, timings,
-                                                      local_problem_hook, gripper)
+        self.plain = it == 0 or (it >= 2 and self.rel_res**2 <= opts.newton_tol * self.prev_res)
+        self.prev_res = self.rel_res
+        if not self.need_tangent:
+            return None
+        # the old factors go before the new ones come (and before the assembly's temporaries: 1.8 GB at 2.3e5 dofs)
+        self.tangent = self.workspace = None
+        handed, self.K = [self.K], None
+        self.tangent, fallback, failure = _new_tangent(self.model, self.state, U, handed, self.consume, it,
+                                                       self.timings, self.loading)
+        if self.tangent is None:
+            return Status.TANGENT_SINGULAR, failure
+        self.at_start = self.at_start or fallback
+        self.n_tangents += 1
+        self.workspace = self.tangent.workspace.copy()
+        if self.anderson is not None:
+            self.anderson.restart(mixing=it == 0)  # another map; taken at an iterate, nearly Newton's
+        return None
+
+    def correct(self, U, R, r, f_contact, it: int, mixed: bool):
+        """The contact solve and the next iterate ``(U, r, failure)``."""
+        local, dU_free, failure = _contact_correction(self.model, self.state, self.tangent, self.workspace, U, R, r,
+                                                      it, self.timings, self.hook, self.gripper)
         if local is not None:
-            logs.append(IterLog(rel_res, int(local.iterations), float(local.residual), local.method, mixed))
+            self.logs.append(IterLog(self.rel_res, int(local.iterations), float(local.residual), local.method, mixed))
         if failure is not None:
-            if not mixed or it == opts.newton_max_iter:
-                status, message = failure
-                break
-            U, r = anderson.fall_back()  # the contact solve failed from a mix, not from the plain iterate
-        else:
-            last_step = float(np.abs(dU_free).max()) if dU_free.size else 0.0
-            U, r = _next_iterate(model, anderson, U, R, f_contact, dU_free, local.r, plain)
-    status, message = _named_cause(model, state, U, status, message)
-    cached = None if not model.reuses_tangent or tangent is None else tangent.with_workspace(
-        workspace, None if anderson is None else anderson.pairs)
-    return Equilibrium(status, message, U, r, f_int, float(min_det), rel_res, scale0, tuple(logs), n_tangents,
-                       cached, timings)
+            if not mixed or it == self.model.options.newton_max_iter:
+                return U, r, failure
+            U, r = self.anderson.fall_back()  # the contact solve failed from a mix, not from the plain iterate
+            return U, r, None
+        self.last_step = float(np.abs(dU_free).max()) if dU_free.size else 0.0
+        U, r = _next_iterate(self.model, self.anderson, U, R, f_contact, dU_free, local.r, self.plain)
+        return U, r, None
+
+    def result(self, U, r) -> Equilibrium:
+        """The :class:`Equilibrium` where the loop ended, a failure's cause named."""
+        model = self.model
+        status, message = _named_cause(model, self.state, U, self.status, self.message)
+        cached = None if not model.reuses_tangent or self.tangent is None else self.tangent.with_workspace(
+            self.workspace, None if self.anderson is None else self.anderson.pairs)
+        return Equilibrium(status, message, U, r, self.f_int, float(self.min_det), self.rel_res, self.scale0,
+                           tuple(self.logs), self.n_tangents, cached, self.timings)
 
 
 STALL_WINDOW = 8

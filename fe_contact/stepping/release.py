@@ -20,9 +20,11 @@ height is one more unknown of the Newton loop, closed by the load
 (:mod:`fe_contact.stepping.pad_load`), and the pad and the floor each slip
 when their own friction limit is reached.  At ``P = 0`` every pad contact
 is open; the rest of the path (up to ``height``) moves nothing, and one settle
-step ends the release.  Its cost is ``steps`` Newton loops and two more;
-its accuracy (first order in the load step, backward-Euler friction) is
-measured in docs/release.md.
+step ends the release.  Each load step is the implicit midpoint rule
+(``Release.scheme``, :func:`~fe_contact.stepping.pad_load.midpoint_load_step`:
+a backward-Euler step to the mid load, extrapolated to the end; second order
+where no contact changes state, where backward Euler is first); its cost is ``steps`` step solves (at most
+``2 steps``) and two more; its accuracy is measured in docs/release.md.
 
 A **bonded pad** (the paper's displacement control) is the exact special
 case of a pad that never slips: ``steps`` increments of ``d / steps`` summing
@@ -52,10 +54,12 @@ from scipy.optimize import brentq
 
 from ..fem.elasticity import internal_force
 from .command import PadLoad
+from .pad_load import midpoint_load_step
 from .release_path import put_down_target
 from .model import Command, Model, State, StepReport
 
 MODES = ("lift",)
+SCHEMES = ("midpoint", "backward_euler")
 OPEN_REMOVED = ("mode 'open' was removed (issue 28): its rest pose depended on an assumed pad stiffness and "
                 "release schedule; let go with mode 'lift' of a frictional pad (Model(pad=Friction(...)); "
                 "in a scenario [gripper] friction = mu), the physical release")
@@ -88,8 +92,9 @@ class Release:
     steps : int
         Increments of the release, in [1, MAX_STEPS]: a bonded pad's lift
         increments of ``d / steps``; a frictional pad's load steps
-        (:func:`pad_load_schedule`), which set the rest pose's accuracy (first
-        order: docs/release.md) and the release's cost (``steps`` Newton loops).
+        (:func:`pad_load_schedule`), which set the rest pose's accuracy
+        (``scheme``: docs/release.md) and the release's cost (``steps`` step
+        solves, at most ``2 steps`` with the midpoint rule).
     max_steps : int
         Limit on the release's steps in all (ramp, extra lift, put-down).
     height : float
@@ -104,6 +109,11 @@ class Release:
     error_tol : None
         Removed (issue 39): given, it raises ``ValueError`` saying so (the
         load-controlled release has no height search to control).
+    scheme : {"midpoint", "backward_euler"}
+        A frictional pad's load steps: the implicit midpoint rule (second
+        order where no contact changes state, :func:`~fe_contact.stepping.pad_load.midpoint_load_step`)
+        or backward Euler (first order; what :func:`~fe_contact.stepping.derivatives.rollout_derivatives`
+        differentiates).  A bonded pad's lift is displacement control either way.
     """
 
     mode: str
@@ -112,6 +122,7 @@ class Release:
     height: float = 0.0
     away: tuple = (0.0, 0.0)
     error_tol: None = None
+    scheme: str = "midpoint"
 
     def __post_init__(self):
         if self.mode == "open":
@@ -124,6 +135,8 @@ class Release:
                 raise ValueError(f"{name} must be an integer in [1, {MAX_STEPS}], got {v!r}")
         if self.error_tol is not None:
             raise ValueError(ERROR_TOL_REMOVED)
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"scheme must be one of {SCHEMES}, got {self.scheme!r}")
         if not (np.isfinite(self.height) and self.height >= 0):
             raise ValueError(f"height must be >= 0 m, got {self.height}")
         away = np.asarray(self.away, dtype=float) if np.ndim(self.away) == 1 else np.full(3, np.nan)
@@ -186,7 +199,10 @@ class ReleaseSchedule:
         function).  Returns (State, StepReport)."""
         from .step import step as step_function
 
-        return (step or step_function)(model, state, command, consume=consume)
+        step = step or step_function
+        if self.release.scheme == "midpoint" and isinstance(command, PadLoad) and command.load > 0:
+            return midpoint_load_step(model, state, command, step, consume)
+        return step(model, state, command, consume=consume)
 
     def _along(self, dz: float) -> Command:
         """The gripper's motion of rise ``dz`` (m) along the release's path (module docstring)."""

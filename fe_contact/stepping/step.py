@@ -23,7 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from .gripper import compliant_step
-from .held import held_step, next_state
+from .held import held_step, joined_report, next_state
 from .command import PadLoad
 from .model import Command, Model, State, StepReport
 from .pad_load import load_step
@@ -88,17 +88,6 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
 def half_command(command: Command) -> Command:
     """Half of a moving command (the same straight path, in two parts)."""
     return Command(dx=command.dx / 2, dy=command.dy / 2, dz=command.dz / 2, dtheta=command.dtheta / 2)
-
-
-def joined_report(state: State, first: StepReport, second: StepReport, command: Command, message: str,
-                  combine=sum) -> StepReport:
-    """The report of a step taken in two parts from ``state``: the second
-    part's, with the whole ``command``, both parts' slip increments, their
-    Newton iterations combined by ``combine`` (``sum``: the cost; ``max``: the
-    longest Newton loop), and ``message``."""
-    return replace(second, command=command, step_index=state.step_index + 1,
-                   newton_iterations=combine((first.newton_iterations, second.newton_iterations)),
-                   slip_increment=first.slip_increment + second.slip_increment, message=message)
 
 
 MAX_SPLITS = 4
