@@ -38,21 +38,19 @@ the schedule's next load below it follows (:class:`~fe_contact.stepping.release.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import replace
 
 import numpy as np
 
-from ..fem.elasticity import internal_force
 from .command import Command, PadLoad
-from .held import joined_report, pad_loading, pad_motion
+from .held import pad_loading, pad_motion
 from .law_check import checked
-from .measure import SEPARATION_FORCE, measure
+from .measure import measure
 from .model import Model, State
-from .newton import Equilibrium, equilibrium
+from .newton import equilibrium
 from .predictor import commanded_pose, predictor
 
-__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step", "midpoint_load_step"]
+__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step"]
 
 LOAD_TOL = 1e-10
 """The pad's load equation is met to this fraction of the load scale (the loaded pad load, or the weight)."""
@@ -331,76 +329,3 @@ def _load_noise(local, q: np.ndarray, pad: np.ndarray, local_tol: float) -> floa
     that scale, over the pad's normal rows (a sum of ``n_pad`` errors)."""
     scale = max(np.linalg.norm(q), np.linalg.norm(local.r), np.linalg.norm(local.u))
     return 10.0 * max(local_tol, local.residual) * scale * math.sqrt(pad.sum())
-
-
-MIDPOINT_LOAD_TOL = 1e-6
-"""A half step whose pad load missed its target by more than this fraction of the load scale ended past a jump
-of the load (the pad let go at once): it is not extrapolated."""
-
-
-def midpoint_load_step(model: Model, state: State, command: PadLoad, step_function, consume: bool = False):
-    """A load step from the pad's load ``P_a`` (``state``'s) to ``P_b =
-    command.load`` by the implicit midpoint rule: a backward-Euler step to the
-    mid load ``P_m = (P_a + P_b) / 2`` (``step_function``, state ``S_m``), then
-    the state extrapolated linearly to the end,
-
-        S_b = 2 S_m - S_a      (displacements, contact forces, the pad's pose),
-
-    whose pad load is ``P_b`` and whose resultant is balanced exactly (both are
-    linear in ``S``).  Each contact's slip over the step is then twice its slip
-    to the mid load, in the direction the mid-step forces give it: the friction
-    law at the middle of the step, not at its end: second order in the load
-    step where no contact changes state, where backward Euler (the slip
-    direction at the end of the step) is first order (docs/release.md).  The extrapolated
-    state is not itself a solution (its contact forces meet the law to second
-    order in the step); the next step starts from it, and the release's last
-    step (to ``P = 0``) is backward Euler, so the rest is a solution.
-
-    Where the half step ended past a jump of the load (``MIDPOINT_LOAD_TOL``), a
-    contact opened or closed in it, the extrapolation pulls on a contact (a
-    normal force below zero: the midpoint rule does not damp a stiff contact's
-    oscillation, measured on a pad 100 x the floor's) or inverts an
-    element, the half step stands and a second backward-Euler step goes on to
-    ``P_b``: at most two step solves per load step.  Returns ``(State,
-    StepReport)``."""
-    t0 = time.perf_counter()
-    start = float(state.reaction[model.n_lower:, 0].sum())
-    middle, first = step_function(model, state, replace(command, load=0.5 * (start + command.load)), consume=consume)
-    if not first.converged:
-        return middle, first
-    U = 2.0 * middle.displacement - state.displacement
-    r = 2.0 * middle.reaction - state.reaction
-    _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
-    scale = max(start, model.weight)
-    if abs(-float(first.upper_force[2]) - 0.5 * (start + command.load)) > MIDPOINT_LOAD_TOL * scale \
-            or np.any(_closed(state.reaction) != _closed(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
-        end, second = step_function(model, middle, command, consume=True)
-        if not second.converged:
-            return middle, second
-        taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
-        return replace(end, step_index=state.step_index + 1), joined_report(
-            state, first, second, taken, "converged in two backward-Euler halves (a contact opened or closed)")
-    translation = 2.0 * middle.upper_translation - state.upper_translation
-    rotation = 2.0 * middle.upper_rotation - state.upper_rotation
-    plate = 2.0 * middle.plate - state.plate  # a compliant gripper's plate pose (the commanded one if rigid)
-    end = replace(state, displacement=U, reaction=r, upper_translation=translation, upper_rotation=rotation,
-                  plate=plate, step_index=state.step_index + 1, tangent=None)
-    eq = Equilibrium(first.status, "converged (implicit midpoint: the half step extrapolated)", U, r, None,
-                     float(min_det), first.newton_residual, 0.0, first.iterations, first.tangent_updates, None,
-                     first.timings)
-    taken = Command(*(translation - state.upper_translation), rotation - state.upper_rotation)
-    extra = None if model.gripper.rigid else {  # the springs' force k (c - p), linear in the state
-        "gripper_force": 2.0 * first.gripper_force - _gripper_force(model, state), "plate": plate}
-    report = measure(model, state, taken, eq, t0, pad_loading(model, end), extra)
-    return replace(end, slip_path=report.slip_path), report
-
-
-def _gripper_force(model: Model, state: State) -> np.ndarray:
-    """A compliant gripper's spring force ``k (c - p)`` (3,), N, N, N m, at ``state`` (``c`` its commanded pose)."""
-    commanded = np.array([*state.upper_translation[:2], state.upper_rotation])
-    return np.asarray(model.gripper.stiffness, dtype=float) * (commanded - state.plate)
-
-
-def _closed(reaction: np.ndarray) -> np.ndarray:
-    """Which contacts carry a normal force (above ``SEPARATION_FORCE`` of the largest force component)."""
-    return reaction[:, 0] > SEPARATION_FORCE * np.abs(reaction).max()

@@ -21,7 +21,7 @@ height is one more unknown of the Newton loop, closed by the load
 when their own friction limit is reached.  At ``P = 0`` every pad contact
 is open; the rest of the path (up to ``height``) moves nothing, and one settle
 step ends the release.  Each load step is the implicit midpoint rule
-(``Release.scheme``, :func:`~fe_contact.stepping.pad_load.midpoint_load_step`:
+(``Release.scheme``, :func:`~fe_contact.stepping.midpoint.midpoint_load_step`:
 a backward-Euler step to the mid load, extrapolated to the end; second order
 where no contact changes state, where backward Euler is first); its cost is ``steps`` step solves (at most
 ``2 steps``) and two more; its accuracy is measured in docs/release.md.
@@ -54,7 +54,8 @@ from scipy.optimize import brentq
 
 from ..fem.elasticity import internal_force
 from .command import PadLoad
-from .pad_load import midpoint_load_step
+from .midpoint import midpoint_load_step
+from .step import step
 from .release_path import put_down_target
 from .model import Command, Model, State, StepReport
 
@@ -111,7 +112,7 @@ class Release:
         load-controlled release has no height search to control).
     scheme : {"midpoint", "backward_euler"}
         A frictional pad's load steps: the implicit midpoint rule (second
-        order where no contact changes state, :func:`~fe_contact.stepping.pad_load.midpoint_load_step`)
+        order where no contact changes state, :func:`~fe_contact.stepping.midpoint.midpoint_load_step`)
         or backward Euler (first order; what :func:`~fe_contact.stepping.derivatives.rollout_derivatives`
         differentiates).  A bonded pad's lift is displacement control either way.
     """
@@ -193,16 +194,13 @@ class ReleaseSchedule:
         self.taken += command is not None
         return command
 
-    def take(self, model: Model, state: State, command, step=None, consume: bool = False):
-        """``command`` from ``state`` (:func:`fe_contact.stepping.step.step`;
-        ``step`` is accepted for the callers that pass it, and must be that
-        function).  Returns (State, StepReport)."""
-        from .step import step as step_function
-
-        step = step or step_function
+    def take(self, model: Model, state: State, command, local_problem_hook=None, consume: bool = False):
+        """``command`` from ``state`` (:func:`fe_contact.stepping.step.step`, or a pad's load
+        step by the midpoint rule, :mod:`fe_contact.stepping.midpoint`); the hook goes to
+        every step solved.  Returns (State, StepReport)."""
         if self.release.scheme == "midpoint" and isinstance(command, PadLoad) and command.load > 0:
-            return midpoint_load_step(model, state, command, step, consume)
-        return step(model, state, command, consume=consume)
+            return midpoint_load_step(model, state, command, local_problem_hook, consume)
+        return step(model, state, command, local_problem_hook, consume=consume)
 
     def _along(self, dz: float) -> Command:
         """The gripper's motion of rise ``dz`` (m) along the release's path (module docstring)."""
@@ -351,9 +349,7 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     scale = schedule.force_scale
     held = model.pad is None
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
-    from .step import step as step_function  # the step module is above this one
-
-    _, further = step_function(model, state, Command())
+    _, further = step(model, state, Command())
     _, further_imbalance = _balance(model, further.displacement,
                                     np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
     motion = float(np.abs(further.displacement - state.displacement).max())

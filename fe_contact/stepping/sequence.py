@@ -62,7 +62,7 @@ class StepSequence:
         for i, command in enumerate(self._commands()):
             consume = self.consume_start or i > 0
             if self.schedule is not None:  # a release step: the schedule's step control
-                self.state, report = self.schedule.take(self.model, self.state, command, self._step, consume)
+                self.state, report = self.schedule.take(self.model, self.state, command, self.hook, consume)
             else:
                 self.state, report = self._step(self.model, self.state, command, consume=consume)
             self.reports.append(report)
