@@ -195,11 +195,3 @@ def test_a_soft_compliant_gripper_with_a_pad_balances_its_springs_and_settles():
     assert np.linalg.norm(last.plate[:2] - [1.2e-3, 4e-4]) > 1e-4  # the plate lags
     assert rest.settled, rest.reason
     assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
-
-
-def test_a_compliant_pad_is_not_differentiated():
-    from fe_contact import rollout_derivatives
-
-    k = pad_block().shear_stiffness
-    with pytest.raises(ValueError, match="compliant gripper with a frictional pad"):
-        rollout_derivatives(pad_block(Gripper(k, k)), PAD_LOADS[:1])

@@ -244,14 +244,11 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     ``state`` is held fixed: its own dependence on the parameters is not
     included.  To include it, give instead ``start``, an earlier converged
     result of this model (e.g. the press), whose final state and parameters
-    the rollout continues from.  With ``release`` (a ``"lift"`` straight up, of
-    the bonded or a frictional pad), the block is let go after the commands
-    (:class:`~fe_contact.stepping.release.ReleaseSchedule`) and the outputs
-    have one more row: the rest, after the release (module docstring: each
-    height differentiated as the schedule chose it, the put-down's root by the
-    implicit function theorem on ``F_z = 0``), and ``rest`` says whether it settled; a
-    pad's load steps by backward Euler (``Release.scheme``, :func:`_differentiated`): the rest
-    row is that release's.
+    the rollout continues from.  With ``release`` (a ``"lift"`` straight up, of the bonded
+    or a frictional pad), the block is let go after the commands and the outputs have one
+    more row: the rest (module docstring: each height as the schedule chose it, the
+    put-down's root by the implicit function theorem on ``F_z = 0``), ``rest`` whether it
+    settled; a pad's load steps by backward Euler (:func:`_differentiated`).
 
     Raises
     ------

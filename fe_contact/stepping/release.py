@@ -54,7 +54,6 @@ from scipy.optimize import brentq
 
 from ..fem.elasticity import internal_force
 from .command import PadLoad
-from .midpoint import midpoint_load_step
 from .step import step
 from .release_path import put_down_target
 from .model import Command, Model, State, StepReport
@@ -194,13 +193,12 @@ class ReleaseSchedule:
         self.taken += command is not None
         return command
 
-    def take(self, model: Model, state: State, command, local_problem_hook=None, consume: bool = False):
-        """``command`` from ``state`` (:func:`fe_contact.stepping.step.step`, or a pad's load
-        step by the midpoint rule, :mod:`fe_contact.stepping.midpoint`); the hook goes to
-        every step solved.  Returns (State, StepReport)."""
-        if self.release.scheme == "midpoint" and isinstance(command, PadLoad) and command.load > 0:
-            return midpoint_load_step(model, state, command, local_problem_hook, consume)
-        return step(model, state, command, local_problem_hook, consume=consume)
+    def midpoint(self, command) -> bool:
+        """Whether ``command`` is taken by the implicit midpoint rule
+        (:mod:`fe_contact.stepping.midpoint`): a frictional pad's load step to a load
+        above zero under ``Release.scheme = "midpoint"``; every other step is
+        :func:`fe_contact.stepping.step.step` (backward Euler)."""
+        return self.release.scheme == "midpoint" and isinstance(command, PadLoad) and command.load > 0
 
     def _along(self, dz: float) -> Command:
         """The gripper's motion of rise ``dz`` (m) along the release's path (module docstring)."""

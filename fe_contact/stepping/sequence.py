@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from .model import Model, State, StepReport, initial_state
 from .release import Release, ReleaseSchedule, rest_check
+from .midpoint import midpoint_load_step
 from .step import step
 
 
@@ -61,8 +62,8 @@ class StepSequence:
     def __iter__(self):
         for i, command in enumerate(self._commands()):
             consume = self.consume_start or i > 0
-            if self.schedule is not None:  # a release step: the schedule's step control
-                self.state, report = self.schedule.take(self.model, self.state, command, self.hook, consume)
+            if self.schedule is not None and self.schedule.midpoint(command):  # a pad's load step, midpoint rule
+                self.state, report = midpoint_load_step(self.model, self.state, command, self.hook, consume)
             else:
                 self.state, report = self._step(self.model, self.state, command, consume=consume)
             self.reports.append(report)

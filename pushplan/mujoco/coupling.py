@@ -284,7 +284,9 @@ class CoSimulation:
             run = drive(self.model, [command], self.state)  # the failed step's own report
             return run.reports[-1], None
         R = rz(self.scene.yaw)  # FE frame -> world
-        self.stiffness = R @ result.d_commands[0, 3:6, 0, :3] @ R.T
+        stiffness = R @ result.d_commands[0, 3:6, 0, :3] @ R.T
+        if np.all(np.isfinite(stiffness)):  # NaN: a contact at a transition (first touch), no derivative
+            self.stiffness = stiffness  # there: the last period's stiffness stands (zero before any)
         return result.reports[-1], result.state
 
     def _check(self, centre: np.ndarray) -> None:
