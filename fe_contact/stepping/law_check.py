@@ -23,6 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..contact.friction import elliptic_norm
 from .model import Model
 from .report import Status, StepReport
 
@@ -41,12 +42,11 @@ def law_violation(model: Model, report: StepReport) -> str:
     if R == 0.0:  # no force anywhere: only the gaps can be wrong
         R = np.inf
     f = model.friction
-    scaled_t = np.column_stack([_over(r[:, 1], f.mu_x, R), _over(r[:, 2], f.mu_y, R)])
     carrying = r[:, 0] > LAW_TOL * R
     checks = (
         ("penetration", -g / L),
         ("adhesion (negative normal force)", -r[:, 0] / R),
-        ("friction force outside the cone", (np.linalg.norm(scaled_t, axis=1) - r[:, 0]) / R),
+        ("friction force outside the cone", (elliptic_norm(r[:, 1:], f.mu_x, f.mu_y) - r[:, 0]) / R),
         ("force at a node off the floor", np.where(carrying, g / L, -np.inf)),
     )
     for what, excess in checks:
@@ -54,14 +54,6 @@ def law_violation(model: Model, report: StepReport) -> str:
         if excess[i] > LAW_TOL:
             return f"{what} at lower-face node {i}: {excess[i]:.3g} (tolerance {LAW_TOL:g} of the block's size or force)"
     return ""
-
-
-def _over(rt: np.ndarray, mu: float, R: float) -> np.ndarray:
-    """``r_t / mu``; for ``mu = 0`` (frictionless along that axis) 0 where ``|r_t| <=
-    LAW_TOL R`` and infinite (outside the cone) elsewhere."""
-    if mu > 0:
-        return rt / mu
-    return np.where(np.abs(rt) <= LAW_TOL * R, 0.0, np.inf)
 
 
 def checked(model: Model, report: StepReport) -> StepReport:
