@@ -26,7 +26,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .derivatives import OUTPUTS, PARAMETERS, _check, _report_outputs
+from .derivatives import OUTPUTS, PARAMETERS, _check
+from .release_derivatives import report_outputs
 from .model import Model, State, Status, TangentCache, initial_state
 from .predictor import commanded_pose
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_adjoint, plate_wrench_derivative,
@@ -96,7 +97,7 @@ def rollout_gradient(model: Model, commands, weights, state: State | None = None
         steps.append((lin, commanded_pose(state, command)[1]) if model.gripper.rigid
                      else _plate_balance(model, state, command, report, lin))
         state = replace(new_state, tangent=TangentCache(lin.tangent))
-        outputs[k] = _report_outputs(report, state)
+        outputs[k] = report_outputs(report, state)
     d_commands, lam_params = _backward(model, steps, g)
     d_parameters = np.array([lam_params[PARAMETERS.index(p)] for p in parameters])
     return RolloutGradient(Status.CONVERGED, "", outputs, float(np.sum(g * outputs)), d_commands, d_parameters,

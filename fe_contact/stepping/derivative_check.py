@@ -7,8 +7,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .derivatives import (COMPONENTS, OUTPUTS, _check, _differentiated, _report_outputs, input_sizes, parameter_values,
-                          rollout_derivatives, with_parameters)
+from .derivatives import (COMPONENTS, OUTPUTS, _check, input_sizes, parameter_values, rollout_derivatives,
+                          with_parameters)
+from .release_derivatives import report_outputs
 from .model import Model, State
 from .release import Release
 from .sequence import StepSequence
@@ -71,7 +72,6 @@ def check_derivatives(model: Model, commands, state: State | None = None, parame
         As :func:`~fe_contact.stepping.derivatives.rollout_derivatives`, or a rollout that does not converge.
     """
     commands, parameters = _check(model, commands, parameters, release)
-    release = _differentiated(release)  # the differences of the release that is differentiated
     exact = rollout_derivatives(model, commands, state, parameters, release=release)
     if not exact.converged:
         raise ValueError(f"the rollout does not converge: {exact.message}")
@@ -128,7 +128,7 @@ def _plain(model, commands, state, release=None) -> np.ndarray:
         if not report.converged:
             raise ValueError(f"central difference: step {k + 1} did not converge: {report.message}")
         if k < len(commands) or release is None:
-            out.append(_report_outputs(report, state))
+            out.append(report_outputs(report, state))
     if release is not None:
-        out.append(_report_outputs(report, state))
+        out.append(report_outputs(report, state))
     return np.array(out)

@@ -25,7 +25,8 @@ with ``dF/dp`` from three more directions of the same held step.
 
 A release (``release=Release("lift", n)``) adds one row, the rest after
 it, differentiated as the discrete map the release schedule took
-(:mod:`~fe_contact.stepping.release_derivatives`); a compliant gripper's
+(:mod:`~fe_contact.stepping.release_derivatives`: a pad's load steps as they ran,
+by the implicit midpoint rule or backward Euler); a compliant gripper's
 plate with a frictional pad is eliminated by its balance in each step
 (:func:`~fe_contact.stepping.pad_sensitivity.solve_compliant_pad`).  A
 release with a retreat is not differentiated.
@@ -46,10 +47,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..fem.loads import Gripper
-from .model import Command, Friction, Model, State, Status, StepReport, TangentCache, initial_state
+from .model import Command, Friction, Model, State, Status, TangentCache, initial_state
 from .release import Release, rest_check
-from .release_derivatives import (RecordingSequence, load_step_root, put_down_root, release_height_derivative,
-                                  whole_steps)
+from .command import PadLoad
+from .release_derivatives import (LoadStep, RecordingSequence, load_step_derivative, put_down_root,
+                                  release_height_derivative, report_outputs, whole_steps)
 from .predictor import commanded_pose
 from .pad_sensitivity import PadLinearisation, solve_compliant_pad
 from .sensitivity import HeldLinearisation, lower_pose_derivative, solve_compliant, upper_pose_jacobian
@@ -231,11 +233,6 @@ def _start(model, commands, parameters, start, release) -> _Run:
     return _Run(d_state, seeds, typical, np.zeros((rows, 9)), np.zeros((rows, 9, J)), [], [])
 
 
-def _differentiated(release: Release | None) -> Release | None:
-    """The release differentiated: a pad's load steps by backward Euler (the midpoint's are not, yet)."""
-    return None if release is None else replace(release, scheme="backward_euler")
-
-
 def rollout_derivatives(model: Model, commands, state: State | None = None, parameters=None,
                         start: RolloutDerivatives | None = None, release: Release | None = None) -> RolloutDerivatives:
     """Run ``commands`` from ``state`` (default: the undeformed block) and
@@ -248,7 +245,8 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
     or a frictional pad), the block is let go after the commands and the outputs have one
     more row: the rest (module docstring: each height as the schedule chose it, the
     put-down's root by the implicit function theorem on ``F_z = 0``), ``rest`` whether it
-    settled; a pad's load steps by backward Euler (:func:`_differentiated`).
+    settled; a pad's load steps as the release takes them (``Release.scheme``: the implicit
+    midpoint rule or backward Euler, :func:`~fe_contact.stepping.release_derivatives.load_step_derivative`).
 
     Raises
     ------
@@ -261,7 +259,6 @@ def rollout_derivatives(model: Model, commands, state: State | None = None, para
             raise ValueError("start must be a converged RolloutDerivatives")
         state, parameters = start.state, start.parameters
     commands, parameters = _check(model, commands, parameters, release)
-    release = _differentiated(release)
     t0 = time.perf_counter()
     state = initial_state(model) if state is None else state
     run = _start(model, commands, parameters, start, release)
@@ -283,7 +280,7 @@ def _sweep(model, sequence, K, state, run: _Run):
             _mark(run, *pending)
         if k == K:
             run.path.append((run.d_state.pose[2].copy(), run.d_out[K - 1, force_z].copy()))
-        result = _sequence_step(model, sequence, k, K, state, new_state, report, run.d_state, run.seeds, run.path)
+        result = _sequence_step(model, sequence, k, K, state, new_state, report, run)
         if isinstance(result[0], Status):
             status, message, pending = *result, None
             break
@@ -335,18 +332,23 @@ def _result(model, commands, parameters, sequence, run: _Run, swept, release, t0
                               time.perf_counter() - t0, tail, tuple(run.transitions), rest)
 
 
-def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, seeds, path):
+def _sequence_step(model, sequence, k, K, state, new_state, report, run: _Run):
     """:func:`_step_derivative` of the ``k``-th step of ``sequence`` (a command's
     for ``k < K``, else a release step's), through the parts it was taken in:
     the halves of a frictional pad's step that failed whole, the parts a release
-    step's error control kept; a part of a fraction ``f`` of the whole command
-    moves with ``f`` times its derivative.  Returns (state, d_state, outputs,
-    d_outputs, the margins of its contacts), or (status, message)."""
-    d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, path)
+    step's error control kept (a part of a fraction ``f`` of the whole command
+    moves with ``f`` times its derivative); a pad's load step as it was taken
+    (:func:`~fe_contact.stepping.release_derivatives.load_step_derivative`).
+    Returns (state, d_state, outputs, d_outputs, the margins of its contacts), or (status, message)."""
+    d_state, seeds = run.d_state, run.seeds
+    d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, run.path)
+    if load is not None:  # a pad's load step: backward Euler or the midpoint rule
+        taken = list(sequence.taken)
+        step = LoadStep(load[0], _load_derivative(model, load, run), run.d_out[min(k - 1, len(run.d_out) - 1)],
+                        sequence.schedule.midpoint(PadLoad(load[0])), OUTPUTS.index("force_z"))
+        return load_step_derivative(model, taken, sequence.parts(new_state), state, new_state, report, step,
+                                    d_state, lambda *args: _step_derivative(model, *args, seeds))
     taken = [(state, new_state, report)] if k < K else sequence.parts(new_state)
-    if load is not None and any("half steps" in part[2].message for part in taken or []):
-        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1}: a load step taken in parts (its load half way, "
-                                         "then the whole): its derivative through them is not available")
     parts = whole_steps(model, taken)
     if k < K:
         sequence.taken = []
@@ -362,8 +364,6 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, d_state, see
             return result
         d_state = result[1]
         found.append(result[4])
-    if k >= K and load:
-        result = _load_root(model, result, load, path, seeds, found)
     if len(parts) == 1 and parts[0][1] is new_state:
         return result[:4] + (found,)
     return new_state, result[1], result[2], result[3], found
@@ -392,20 +392,12 @@ def _whole_command(model, sequence, k, K, d_state, seeds, path):
     return d_whole, load
 
 
-def _load_root(model, result, load, path, seeds, found):
-    """A pad's load step: its height the root of its load
-    (:func:`~fe_contact.stepping.release_derivatives.load_step_root`), applied
-    to the state, the outputs and the margins of the step's last part."""
-    d_target = load[1] * -path[0][1] + load[2] * model.weight / model.material.density * \
-        seeds[PARAMETERS.index("density")]
-    state_, d_st, outputs_, d_row, _ = result
-    m, dm, kind, skip = found[-1]
-    d_row, arrays = load_step_root(d_row, OUTPUTS.index("force_z"), load[0], d_target,
-                                   (d_st.displacement, d_st.pose, d_st.plate, dm.reshape(-1, dm.shape[-1])))
-    if load[0] == 0:  # the pad open at zero load: its height does not move the block, its contacts are not checked
-        skip = skip | (np.arange(m.shape[0]) >= model.n_lower)
-    found[-1] = (m, arrays[3].reshape(dm.shape), kind, skip)
-    return state_, StateDerivative(*arrays[:3]), outputs_, d_row, found[-1]
+def _load_derivative(model, load, run: _Run) -> np.ndarray:
+    """The derivative (J,) of a pad's load step's load ``P_k`` of the schedule
+    (``load`` its ``(P_k, dP_k / dP_0, dP_k / dW)``): of the loaded load ``P_0 =
+    -F_z`` of the release's start and of the weight ``rho g V``."""
+    return load[1] * -run.path[0][1] + load[2] * model.weight / model.material.density * \
+        run.seeds[PARAMETERS.index("density")]
 
 
 @dataclass(frozen=True)
@@ -444,7 +436,7 @@ def _step_derivative(model, state, new_state, report, d_state, d_command, seeds)
                                         np.array([translation[0], translation[1], rotation]))
     dU = held.displacement
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    outputs = _report_outputs(report, new_state)
+    outputs = report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
     return (new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J),
             _margins(model, lin, held, seeds))
@@ -485,14 +477,8 @@ def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds
         return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
     dU = held.displacement
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    return (new_state, StateDerivative(dU, d_pose, d_plate), _report_outputs(report, new_state), d_out,
+    return (new_state, StateDerivative(dU, d_pose, d_plate), report_outputs(report, new_state), d_out,
             _margins(model, lin, held, seeds))
-
-
-def _report_outputs(report: StepReport, state: State) -> np.ndarray:
-    """:data:`OUTPUTS` of a converged step (9,) ending in ``state`` (the plate
-    pose of the state: a rigid drive's report carries the start's)."""
-    return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])
 
 
 __all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "Transition", "applicable_parameters",

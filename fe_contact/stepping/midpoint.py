@@ -34,7 +34,8 @@ MIDPOINT_LOAD_TOL = 1e-6
 of the load (the pad let go at once): it is not extrapolated."""
 
 
-def midpoint_load_step(model: Model, state: State, command: PadLoad, local_problem_hook=None, consume: bool = False):
+def midpoint_load_step(model: Model, state: State, command: PadLoad, local_problem_hook=None, consume: bool = False,
+                       solve=None):
     """A load step from the pad's load ``P_a`` (``state``'s) to ``P_b =
     command.load`` by the implicit midpoint rule: a backward-Euler step to the
     mid load ``P_m = (P_a + P_b) / 2`` (state ``S_m``), then
@@ -58,11 +59,13 @@ def midpoint_load_step(model: Model, state: State, command: PadLoad, local_probl
     oscillation, measured on a pad 100 x the floor's) or inverts an
     element, the half step stands and a second backward-Euler step goes on to
     ``P_b``: at most two step solves per load step.  ``local_problem_hook`` goes to
-    each step (:func:`~fe_contact.stepping.step.step`).  Returns ``(State, StepReport)``."""
+    each step (:func:`~fe_contact.stepping.step.step`); ``solve(model, state, command,
+    consume=...)`` takes them instead if given (a sequence that records its steps for
+    their derivatives, :mod:`~fe_contact.stepping.release_derivatives`).  Returns ``(State, StepReport)``."""
     t0 = time.perf_counter()
+    solve = solve or (lambda m, s, c, consume=False: step(m, s, c, local_problem_hook, consume=consume))
     start = float(state.reaction[model.n_lower:, 0].sum())
-    middle, first = step(model, state, replace(command, load=0.5 * (start + command.load)), local_problem_hook,
-                         consume=consume)
+    middle, first = solve(model, state, replace(command, load=0.5 * (start + command.load)), consume=consume)
     if not first.converged:
         return middle, first
     U = 2.0 * middle.displacement - state.displacement
@@ -71,7 +74,7 @@ def midpoint_load_step(model: Model, state: State, command: PadLoad, local_probl
     scale = max(start, model.weight)
     if abs(-float(first.upper_force[2]) - 0.5 * (start + command.load)) > MIDPOINT_LOAD_TOL * scale \
             or np.any(_closed(state.reaction) != _closed(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
-        end, second = step(model, middle, command, local_problem_hook, consume=True)
+        end, second = solve(model, middle, command, consume=True)
         if not second.converged:
             return middle, second
         taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)

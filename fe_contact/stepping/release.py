@@ -112,8 +112,8 @@ class Release:
     scheme : {"midpoint", "backward_euler"}
         A frictional pad's load steps: the implicit midpoint rule (second
         order where no contact changes state, :func:`~fe_contact.stepping.midpoint.midpoint_load_step`)
-        or backward Euler (first order; what :func:`~fe_contact.stepping.derivatives.rollout_derivatives`
-        differentiates).  A bonded pad's lift is displacement control either way.
+        or backward Euler (first order); :func:`~fe_contact.stepping.derivatives.rollout_derivatives`
+        differentiates either as it runs.  A bonded pad's lift is displacement control either way.
     """
 
     mode: str

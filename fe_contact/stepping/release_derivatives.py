@@ -16,23 +16,52 @@ from one more input column (the step's own height).  The path matters: the
 put-down overshoots below ``h*`` and comes back, and the contacts that slip
 on the way keep it.  A frictional pad's load step finds its height as the
 root of its load (:func:`load_step_root`), differentiated the same way.
+
+A pad's load step as it was taken (:func:`load_step_derivative`): its backward-Euler
+map ``S' = BE(S, P)`` (``S`` the displacements, contact forces, the pad's pose and
+the plate's) by the step's sensitivity with its own height as one more input, that
+height then eliminated as the root of the load.  The implicit midpoint rule
+(:func:`~fe_contact.stepping.midpoint.midpoint_load_step`, the default
+``Release.scheme``) from ``S_a`` (pad load ``P_a``) to ``P_b``,
+
+    P_m = (P_a + P_b) / 2,    S_m = BE(S_a, P_m),    S_b = 2 S_m - S_a,
+
+differentiates as
+
+    dP_m = (dP_a + dP_b) / 2,   dS_m = dBE(dS_a; P_m, dP_m),   dS_b = 2 dS_m - dS_a,
+
+``dP_a = -dF_z,a`` the start's own pad load (the previous step's output: a function of
+the path), ``dP_b`` the schedule's (:func:`~fe_contact.stepping.release.pad_load_schedule`).
+The outputs at ``S_b``: the lower face's pose of ``U_b``, the pad's force ``2 F_m -
+F_a`` (linear in the contact forces), the plate's pose ``2 p_m - p_a``.  Where the
+step fell back to two backward-Euler halves (a contact opened or closed, a normal
+force below zero, an inverted element, a jump of the load), ``S_b = BE(BE(S_a, P_m),
+P_b)``: two sensitivities, each with its own height's root.  Which branch the step
+took is the run's discrete choice; the branch margins checked
+(:mod:`~fe_contact.stepping.transitions`) are those of the contacts at each
+backward-Euler solve's end (``S_m``, and ``S_b`` after a fallback).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
-from .model import Model, State
+from .model import Model, State, Status, StepReport
+from .sensitivity import lower_pose_derivative
 from .sequence import StepSequence
 from .step import half_command, step
 
-__all__ = ["RecordingSequence", "load_step_root", "put_down_root", "release_height_derivative", "whole_steps"]
+__all__ = ["LoadStep", "RecordingSequence", "load_step_derivative", "load_step_root", "put_down_root",
+           "release_height_derivative", "report_outputs", "whole_steps"]
 
 
 class RecordingSequence(StepSequence):
     """:class:`~fe_contact.stepping.sequence.StepSequence` that keeps the steps it
-    takes since the last one it yielded (the parts a step was taken in), and
-    a step's derivative follows the parts that were kept."""
+    takes since the last one it yielded (the parts a step was taken in, a midpoint
+    load step's backward-Euler solves among them), and a step's derivative follows
+    the parts that were kept."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -158,3 +187,121 @@ def whole_steps(model, parts):
         out += whole_steps(model, [(start, middle, first), (middle, finish, second)]) or [None]
     return None if None in out else out
 
+
+@dataclass(frozen=True)
+class LoadStep:
+    """A pad's load step to differentiate along J inputs (the last the step's own height).
+
+    Attributes
+    ----------
+    load : float
+        The schedule's load at the step's end ``P_b``, N.
+    d_load : ndarray, shape (J,)
+        Its derivative.
+    d_start_out : ndarray, shape (9, J)
+        The outputs' derivatives at the step's start (the previous step's;
+        :data:`~fe_contact.stepping.derivatives.OUTPUTS`).
+    midpoint : bool
+        Taken by the implicit midpoint rule.
+    force_z : int
+        The row of the pad's vertical force in the outputs.
+    """
+
+    load: float
+    d_load: np.ndarray
+    d_start_out: np.ndarray
+    midpoint: bool
+    force_z: int
+
+
+def load_step_derivative(model, taken: list, chain: list | None, state: State, new_state: State, report: StepReport,
+                         step: LoadStep, d_state, differentiate):
+    """The derivatives of a load step from ``state`` that ended in ``(new_state,
+    report)`` (module docstring: backward Euler, or the midpoint rule).  ``taken`` are the backward-Euler steps the
+    step solved, in order, as ``(start, end, report)``; ``chain`` those of them
+    that lead to ``new_state`` (None if none does: the midpoint's half step,
+    extrapolated); ``d_state`` the start's
+    :class:`~fe_contact.stepping.derivatives.StateDerivative`;
+    ``differentiate(start, end, report, d_state, d_command)`` a backward-Euler
+    step's derivatives (:func:`~fe_contact.stepping.derivatives._step_derivative`).
+    Returns (state, d_state, outputs, d_outputs, the margins of each solve's
+    contacts), or (status, message)."""
+    where = f"step {state.step_index + 1}"
+    if not report.converged:
+        return report.status, f"{where}: {report.message}"
+    if any(part[2].converged and "half steps" in part[2].message for part in taken):
+        return Status.TANGENT_SINGULAR, (f"{where}: a load step taken in parts (its load half way, then the whole): "
+                                         "its derivative through them is not available")
+    middle = middle_load(model, state, step)
+    if step.midpoint and not chain:  # the half step, extrapolated
+        if not taken or not taken[0][2].converged:
+            return Status.TANGENT_SINGULAR, f"{where}: the midpoint's half step was not found"
+        half = _rooted(model, taken[0], d_state, *middle, differentiate, step.force_z)
+        if isinstance(half[0], Status):
+            return half
+        return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
+    loads = [middle, (step.load, step.d_load)] if step.midpoint else [(step.load, step.d_load)]
+    if not chain or len(chain) != len(loads):
+        return Status.TANGENT_SINGULAR, f"{where}: the parts it was taken in were not found"
+    found = []
+    for part, (load, d_load) in zip(chain, loads, strict=True):
+        result = _rooted(model, part, d_state, load, d_load, differentiate, step.force_z)
+        if isinstance(result[0], Status):
+            return result
+        d_state = result[1]
+        found.append(result[4])
+    return new_state, d_state, report_outputs(report, new_state), result[3], found
+
+
+def middle_load(model, state: State, step: LoadStep) -> tuple[float, np.ndarray]:
+    """The midpoint's mid load ``P_m = (P_a + P_b) / 2``, N, and its derivative
+    (J,): ``P_a`` the pad's load at ``state`` (as
+    :func:`~fe_contact.stepping.midpoint.midpoint_load_step` takes it), ``dP_a =
+    -dF_z`` the start's output (the step's own height, the last input, not in it)."""
+    d_start_load = -np.array(step.d_start_out[step.force_z])
+    d_start_load[-1] = 0.0
+    return 0.5 * (float(state.reaction[model.n_lower:, 0].sum()) + step.load), 0.5 * (d_start_load + step.d_load)
+
+
+def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate, force_z: int):
+    """A backward-Euler load step ``part`` to ``load`` (``d_load`` (J,) its
+    derivative): the step's sensitivity with its own height the last input,
+    then that height the root of the load
+    (:func:`load_step_root`), applied to
+    the state, the outputs and the margins.  At ``load = 0`` the pad is open: its
+    height does not move the block and its contacts are not checked."""
+    for name in ("displacement", "pose", "plate"):
+        getattr(d_state, name)[:, -1] = 0.0  # the last input: this step's own height
+    d_command = np.zeros((4, d_state.pose.shape[1]))
+    d_command[2, -1] = 1.0
+    result = differentiate(*part, d_state, d_command)
+    if isinstance(result[0], Status):
+        return result
+    end, d_end, outputs, d_out, (m, dm, kind, skip) = result
+    d_out, arrays = load_step_root(d_out, force_z, load, d_load,
+                                   (d_end.displacement, d_end.pose, d_end.plate, dm.reshape(-1, dm.shape[-1])))
+    if load == 0:
+        skip = skip | (np.arange(m.shape[0]) >= model.n_lower)
+    d_end = replace(d_end, displacement=arrays[0], pose=arrays[1], plate=arrays[2])
+    return end, d_end, outputs, d_out, (m, arrays[3].reshape(dm.shape), kind, skip)
+
+
+def _extrapolated(model, new_state: State, report: StepReport, d_start, half, d_start_out: np.ndarray):
+    """The midpoint's end ``S_b = 2 S_m - S_a`` from its half step's rooted
+    derivatives ``half`` (:func:`_rooted`) and the start's ``d_start``,
+    ``d_start_out`` (module docstring)."""
+    _, d_mid, _, d_out_mid, found = half
+    d_start_out = np.array(d_start_out)
+    d_start_out[:, -1] = 0.0  # the start's own height is not an input of this step
+    d_end = replace(d_mid, **{name: 2.0 * getattr(d_mid, name) - getattr(d_start, name)
+                              for name in ("displacement", "pose", "plate")})
+    d_out = np.vstack([lower_pose_derivative(model, new_state.displacement, d_end.displacement),
+                       2.0 * d_out_mid[3:6] - d_start_out[3:6], d_end.plate])
+    return new_state, d_end, report_outputs(report, new_state), d_out, [found]
+
+
+def report_outputs(report: StepReport, state: State) -> np.ndarray:
+    """:data:`~fe_contact.stepping.derivatives.OUTPUTS` of a converged step (9,)
+    ending in ``state`` (the plate pose of the state: a rigid drive's report
+    carries the start's)."""
+    return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])

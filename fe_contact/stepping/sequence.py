@@ -63,7 +63,8 @@ class StepSequence:
         for i, command in enumerate(self._commands()):
             consume = self.consume_start or i > 0
             if self.schedule is not None and self.schedule.midpoint(command):  # a pad's load step, midpoint rule
-                self.state, report = midpoint_load_step(self.model, self.state, command, self.hook, consume)
+                self.state, report = midpoint_load_step(self.model, self.state, command, self.hook, consume,
+                                                        solve=self._step)
             else:
                 self.state, report = self._step(self.model, self.state, command, consume=consume)
             self.reports.append(report)

@@ -4,7 +4,7 @@ rollout a :func:`pushplan.run.drive` run branching from the pressed state."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -172,8 +172,8 @@ class FeRollouts:
         the same converged steps).  ``upper`` holds the plate's pose (the upper face's,
         for the rigid gripper).  Where a derivative does not exist (a contact at a
         transition of the contact law) its entries are NaN and the rollout's
-        ``nondifferentiable`` says why. With a frictional pad's midpoint release the rest is that
-        release's (one more plain rollout) and its Jacobian the backward-Euler release's.
+        ``nondifferentiable`` says why.  A frictional pad's release is differentiated as it
+        is run (midpoint or backward-Euler load steps, ``Release.scheme``): one rollout.
 
         Raises
         ------
@@ -203,11 +203,6 @@ class FeRollouts:
         roll = Rollout(np.array(commands, float), lower, upper, reports,
                        tuple(StepSummary.from_report(r) for r in reports), time.perf_counter() - t0, rest,
                        tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable())
-        if self.release is not None and self.model.pad is not None and self.release.scheme == "midpoint":
-            # the rest of the release as run (midpoint load steps); the Jacobian is the backward-Euler
-            # release's (rollout_derivatives), O(1 / steps) of the lag away: one more plain rollout
-            plain = self.rollout(commands)
-            roll = replace(plain, wall_time=plain.wall_time + roll.wall_time, nondifferentiable=roll.nondifferentiable)
         return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 
     def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
