@@ -201,3 +201,16 @@ def test_a_transition_in_a_midpoint_step_is_flagged(monkeypatch):
     flipped = set().union(*(t.inputs for t in result.transitions))
     rest = result.jacobian()[-9:-6]
     assert flipped and all(np.all(np.isnan(rest[:, j])) == (j in flipped) for j in range(rest.shape[1]))
+
+
+def test_a_load_step_past_a_jump_of_the_load_is_not_differentiated(monkeypatch):
+    """A load step that ended past a jump of the pad's load (the pad let go at once,
+    its load below the target: :mod:`~fe_contact.stepping.pad_load`) is no root of its
+    load: the result says so instead of a number (every step misses here: the
+    tolerance on the load set to 0)."""
+    import fe_contact.stepping.release_derivatives as release_derivatives
+
+    monkeypatch.setattr(release_derivatives, "MIDPOINT_LOAD_TOL", 0.0)
+    result = rollout_derivatives(model(0.5), LIFT_PUSH, release=RELEASE)
+    assert not result.converged and "past a jump of the pad's load" in result.message, result.message
+    assert result.message.startswith("step 3: ")

@@ -48,6 +48,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .midpoint import MIDPOINT_LOAD_TOL
 from .model import Model, State, Status, StepReport
 from .sensitivity import lower_pose_derivative
 from .sequence import StepSequence
@@ -236,7 +237,7 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
     if step.midpoint and not chain:  # the half step, extrapolated
         if not taken or not taken[0][2].converged:
             return Status.TANGENT_SINGULAR, f"{where}: the midpoint's half step was not found"
-        half = _rooted(model, taken[0], d_state, *middle, differentiate, step.force_z)
+        half = _rooted(model, taken[0], d_state, *middle, differentiate, step.force_z, where)
         if isinstance(half[0], Status):
             return half
         return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
@@ -245,7 +246,7 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
         return Status.TANGENT_SINGULAR, f"{where}: the parts it was taken in were not found"
     found = []
     for part, (load, d_load) in zip(chain, loads, strict=True):
-        result = _rooted(model, part, d_state, load, d_load, differentiate, step.force_z)
+        result = _rooted(model, part, d_state, load, d_load, differentiate, step.force_z, where)
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
@@ -263,13 +264,20 @@ def middle_load(model, state: State, step: LoadStep) -> tuple[float, np.ndarray]
     return 0.5 * (float(state.reaction[model.n_lower:, 0].sum()) + step.load), 0.5 * (d_start_load + step.d_load)
 
 
-def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate, force_z: int):
+def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate, force_z: int, where: str):
     """A backward-Euler load step ``part`` to ``load`` (``d_load`` (J,) its
     derivative): the step's sensitivity with its own height the last input,
     then that height the root of the load
     (:func:`load_step_root`), applied to
     the state, the outputs and the margins.  At ``load = 0`` the pad is open: its
-    height does not move the block and its contacts are not checked."""
+    height does not move the block and its contacts are not checked.  A step that
+    ended past a jump of the load (:mod:`~fe_contact.stepping.pad_load`: the pad let
+    go at once, its load below the target) is no root: (status, message)."""
+    start, _, report = part
+    carried, scale = -float(report.upper_force[2]), max(float(start.reaction[model.n_lower:, 0].sum()), model.weight)
+    if load > 0 and abs(carried - load) > MIDPOINT_LOAD_TOL * scale:
+        return Status.TANGENT_SINGULAR, (f"{where}: a load step ended past a jump of the pad's load ({carried:.6g} N "
+                                         f"for {load:.6g} N: the pad let go at once): its derivative is not available")
     for name in ("displacement", "pose", "plate"):
         getattr(d_state, name)[:, -1] = 0.0  # the last input: this step's own height
     d_command = np.zeros((4, d_state.pose.shape[1]))
