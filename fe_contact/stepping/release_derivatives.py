@@ -218,10 +218,10 @@ class LoadStep:
 def load_step_derivative(model, taken: list, chain: list | None, state: State, new_state: State, report: StepReport,
                          step: LoadStep, d_state, differentiate):
     """The derivatives of a load step from ``state`` that ended in ``(new_state,
-    report)`` (module docstring: backward Euler, or the midpoint rule).  ``taken`` are the backward-Euler steps the
-    step solved, in order, as ``(start, end, report)``; ``chain`` those of them
-    that lead to ``new_state`` (None if none does: the midpoint's half step,
-    extrapolated); ``d_state`` the start's
+    report)`` (module docstring: backward Euler, or the midpoint rule).  ``taken``
+    are the backward-Euler steps the step solved, in order, as ``(start, end,
+    report)``; ``chain`` those of them that lead to ``new_state`` (None if none
+    does: the midpoint's half step, extrapolated); ``d_state`` the start's
     :class:`~fe_contact.stepping.derivatives.StateDerivative`;
     ``differentiate(start, end, report, d_state, d_command)`` a backward-Euler
     step's derivatives (:func:`~fe_contact.stepping.derivatives._step_derivative`).
