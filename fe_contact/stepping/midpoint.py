@@ -14,7 +14,6 @@ mid-step's: second order where no contact changes state (docs/release.md).
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -23,23 +22,31 @@ from ..fem.elasticity import internal_force
 from .command import Command, PadLoad
 from .held import joined_report, pad_loading
 from .measure import SEPARATION_FORCE, measure
-from .model import Model, State
+from .model import Model, State, StepReport
 from .newton import Equilibrium
-from .step import step
 
-__all__ = ["MIDPOINT_LOAD_TOL", "midpoint_load_step"]
+__all__ = ["MIDPOINT_LOAD_TOL", "extrapolated", "midpoint_half", "two_halves"]
 
 MIDPOINT_LOAD_TOL = 1e-6
 """A half step whose pad load missed its target by more than this fraction of the load scale ended past a jump
 of the load (the pad let go at once): it is not extrapolated."""
 
 
-def midpoint_load_step(model: Model, state: State, command: PadLoad, local_problem_hook=None, consume: bool = False,
-                       solve=None):
-    """A load step from the pad's load ``P_a`` (``state``'s) to ``P_b =
-    command.load`` by the implicit midpoint rule: a backward-Euler step to the
-    mid load ``P_m = (P_a + P_b) / 2`` (state ``S_m``), then
-    the state extrapolated linearly to the end,
+def midpoint_half(model: Model, state: State, command: PadLoad) -> PadLoad:
+    """The half step of a load step from the pad's load ``P_a`` (``state``'s) to
+    ``P_b = command.load`` by the implicit midpoint rule: the backward-Euler step
+    (:func:`~fe_contact.stepping.step.step`) to the mid load ``P_m = (P_a + P_b) / 2``.
+    The stepping loop (:class:`~fe_contact.stepping.sequence.StepSequence`) takes it,
+    then :func:`extrapolated`, and where that returns None a second backward-Euler
+    step from the half step to ``P_b`` (:func:`two_halves`): at most two step solves
+    per load step."""
+    start = float(state.reaction[model.n_lower:, 0].sum())
+    return replace(command, load=0.5 * (start + command.load))
+
+
+def extrapolated(model: Model, state: State, command: PadLoad, middle: State, first: StepReport, t0: float):
+    """The end of the midpoint load step from ``state`` to ``command.load``, its half
+    step ``(middle, first)`` (:func:`midpoint_half`, converged) extrapolated linearly,
 
         S_b = 2 S_m - S_a      (displacements, contact forces, the pad's pose),
 
@@ -53,33 +60,22 @@ def midpoint_load_step(model: Model, state: State, command: PadLoad, local_probl
     order in the step); the next step starts from it, and the release's last
     step (to ``P = 0``) is backward Euler, so the rest is a solution.
 
-    Where the half step ended past a jump of the load (``MIDPOINT_LOAD_TOL``), a
-    contact opened or closed in it, the extrapolation pulls on a contact (a
+    None where the half step ended past a jump of the load (``MIDPOINT_LOAD_TOL``),
+    a contact opened or closed in it, the extrapolation pulls on a contact (a
     normal force below zero: the midpoint rule does not damp a stiff contact's
-    oscillation, measured on a pad 100 x the floor's) or inverts an
-    element, the half step stands and a second backward-Euler step goes on to
-    ``P_b``: at most two step solves per load step.  ``local_problem_hook`` goes to
-    each step (:func:`~fe_contact.stepping.step.step`); ``solve(model, state, command,
-    consume=...)`` takes them instead if given (a sequence that records its steps for
-    their derivatives, :mod:`~fe_contact.stepping.release_derivatives`).  Returns ``(State, StepReport)``."""
-    t0 = time.perf_counter()
-    solve = solve or (lambda m, s, c, consume=False: step(m, s, c, local_problem_hook, consume=consume))
+    oscillation, measured on a pad 100 x the floor's) or inverts an element: the
+    half step stands and a second backward-Euler step goes on to ``P_b``
+    (:func:`two_halves`).  ``t0`` (s, ``time.perf_counter``) the step's start.
+    Returns ``(State, StepReport)`` or None."""
     start = float(state.reaction[model.n_lower:, 0].sum())
-    middle, first = solve(model, state, replace(command, load=0.5 * (start + command.load)), consume=consume)
-    if not first.converged:
-        return middle, first
+    mid_load = 0.5 * (start + command.load)
     U = 2.0 * middle.displacement - state.displacement
     r = 2.0 * middle.reaction - state.reaction
     _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
     scale = max(start, model.weight)
-    if abs(-float(first.upper_force[2]) - 0.5 * (start + command.load)) > MIDPOINT_LOAD_TOL * scale \
+    if abs(-float(first.upper_force[2]) - mid_load) > MIDPOINT_LOAD_TOL * scale \
             or np.any(_closed(state.reaction) != _closed(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
-        end, second = solve(model, middle, command, consume=True)
-        if not second.converged:
-            return middle, second
-        taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
-        return replace(end, step_index=state.step_index + 1), joined_report(
-            state, first, second, taken, "converged in two backward-Euler halves (a contact opened or closed)")
+        return None
     translation = 2.0 * middle.upper_translation - state.upper_translation
     rotation = 2.0 * middle.upper_rotation - state.upper_rotation
     plate = 2.0 * middle.plate - state.plate  # a compliant gripper's plate pose (the commanded one if rigid)
@@ -93,6 +89,16 @@ def midpoint_load_step(model: Model, state: State, command: PadLoad, local_probl
         "gripper_force": 2.0 * first.gripper_force - _gripper_force(model, state), "plate": plate}
     report = measure(model, state, taken, eq, t0, pad_loading(model, end), extra)
     return replace(end, slip_path=report.slip_path), report
+
+
+def two_halves(state: State, first: StepReport, end: State, second: StepReport):
+    """The load step from ``state`` taken as its half step (report ``first``) and a
+    second backward-Euler step to ``end`` (report ``second``, converged), where
+    :func:`extrapolated` may not extrapolate: ``(State, StepReport)``, the whole
+    step's command, both parts' Newton iterations."""
+    taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
+    return replace(end, step_index=state.step_index + 1), joined_report(
+        state, first, second, taken, "converged in two backward-Euler halves (a contact opened or closed)")
 
 
 def _gripper_force(model: Model, state: State) -> np.ndarray:

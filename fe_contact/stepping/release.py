@@ -21,7 +21,7 @@ height is one more unknown of the Newton loop, closed by the load
 when their own friction limit is reached.  At ``P = 0`` every pad contact
 is open; the rest of the path (up to ``height``) moves nothing, and one settle
 step ends the release.  Each load step is the implicit midpoint rule
-(``Release.scheme``, :func:`~fe_contact.stepping.midpoint.midpoint_load_step`:
+(``Release.scheme``, :mod:`~fe_contact.stepping.midpoint`:
 a backward-Euler step to the mid load, extrapolated to the end; second order
 where no contact changes state, where backward Euler is first); its cost is ``steps`` step solves (at most
 ``2 steps``) and two more; its accuracy is measured in docs/release.md.
@@ -111,7 +111,7 @@ class Release:
         load-controlled release has no height search to control).
     scheme : {"midpoint", "backward_euler"}
         A frictional pad's load steps: the implicit midpoint rule (second
-        order where no contact changes state, :func:`~fe_contact.stepping.midpoint.midpoint_load_step`)
+        order where no contact changes state, :mod:`~fe_contact.stepping.midpoint`)
         or backward Euler (first order); :func:`~fe_contact.stepping.derivatives.rollout_derivatives`
         differentiates either as it runs.  A bonded pad's lift is displacement control either way.
     """

@@ -21,7 +21,7 @@ A pad's load step as it was taken (:func:`load_step_derivative`): its backward-E
 map ``S' = BE(S, P)`` (``S`` the displacements, contact forces, the pad's pose and
 the plate's) by the step's sensitivity with its own height as one more input, that
 height then eliminated as the root of the load.  The implicit midpoint rule
-(:func:`~fe_contact.stepping.midpoint.midpoint_load_step`, the default
+(:mod:`~fe_contact.stepping.midpoint`, the default
 ``Release.scheme``) from ``S_a`` (pad load ``P_a``) to ``P_b``,
 
     P_m = (P_a + P_b) / 2,    S_m = BE(S_a, P_m),    S_b = 2 S_m - S_a,
@@ -257,7 +257,7 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
 def middle_load(model, state: State, step: LoadStep) -> tuple[float, np.ndarray]:
     """The midpoint's mid load ``P_m = (P_a + P_b) / 2``, N, and its derivative
     (J,): ``P_a`` the pad's load at ``state`` (as
-    :func:`~fe_contact.stepping.midpoint.midpoint_load_step` takes it), ``dP_a =
+    :func:`~fe_contact.stepping.midpoint.midpoint_half` takes it), ``dP_a =
     -dF_z`` the start's output (the step's own height, the last input, not in it)."""
     d_start_load = -np.array(step.d_start_out[step.force_z])
     d_start_load[-1] = 0.0

@@ -10,9 +10,11 @@ False.
 
 from __future__ import annotations
 
+import time
+
 from .model import Model, State, StepReport, initial_state
 from .release import Release, ReleaseSchedule, rest_check
-from .midpoint import midpoint_load_step
+from .midpoint import extrapolated, midpoint_half, two_halves
 from .step import step
 
 
@@ -63,14 +65,27 @@ class StepSequence:
         for i, command in enumerate(self._commands()):
             consume = self.consume_start or i > 0
             if self.schedule is not None and self.schedule.midpoint(command):  # a pad's load step, midpoint rule
-                self.state, report = midpoint_load_step(self.model, self.state, command, self.hook, consume,
-                                                        solve=self._step)
+                self.state, report = self._midpoint(command, consume)
             else:
                 self.state, report = self._step(self.model, self.state, command, consume=consume)
             self.reports.append(report)
             yield self.state, report
             if not report.converged and self.stop_on_failure:
                 return
+
+    def _midpoint(self, command, consume: bool):
+        """A pad's load step by the implicit midpoint rule (:mod:`~fe_contact.stepping.midpoint`):
+        the half step, extrapolated, or where it may not be, a second backward-Euler
+        step from it; both solves by :meth:`_step` (a recording sequence records them)."""
+        t0, start = time.perf_counter(), self.state
+        middle, first = self._step(self.model, start, midpoint_half(self.model, start, command), consume=consume)
+        if not first.converged:
+            return middle, first
+        end = extrapolated(self.model, start, command, middle, first, t0)
+        if end is not None:
+            return end
+        last, second = self._step(self.model, middle, command, consume=True)
+        return two_halves(start, first, last, second) if second.converged else (middle, second)
 
     def _step(self, model: Model, state: State, command, consume: bool = False):
         """:func:`~fe_contact.stepping.step.step` with the sequence's local-problem hook."""
