@@ -169,6 +169,9 @@ def measure_loops(address: str, text: str, loops: int, budget: float) -> dict:
     replan_l = np.array([x for run in local for x in run["replan"]])
     parts = np.array([p for run in service for p in run["parts"]])  # server, session, session cpu, solve
     overhead = replan_s - replan_l
+    steps = tomllib.loads(text)["plan"]["steps"]
+    by_left = {str(steps - len(r["executed"])): _stats([run["cpu"][i] for run in local])
+               for i, r in enumerate(requests)}  # where the tail is: the re-plans with the most pushes left
     return {
         "loops": len(service), "loops_asked": loops, "loop_budget_s": budget,
         "replans_per_loop": len(requests), "answers_equal_to_the_first_loop": same,
@@ -176,6 +179,7 @@ def measure_loops(address: str, text: str, loops: int, budget: float) -> dict:
         "plan": _stats([r["plan"] for r in service]), "plan_in_process": _stats([r["plan"] for r in local]),
         "warm_replan": _stats(replan_s), "warm_replan_in_process": _stats(replan_l),
         "warm_replan_in_process_cpu": _stats([x for run in local for x in run["cpu"]]),
+        "warm_replan_cpu_by_pushes_left": by_left,
         "warm_replan_session_cpu": _stats(parts[:, 2]),
         "warm_replan_overhead": _stats(overhead),
         "warm_replan_wire": _stats(replan_s - parts[:, 1]),
@@ -312,6 +316,8 @@ def _summary(doc: dict) -> None:
     print(f"warm re-plan: service - in process per call (pairs) median {o['median_s'] * ms:.2f} ms, p99 "
           f"{o['p99_s'] * ms:.2f} ms; the wire (client time - session time, same call) median {w['median_s'] * ms:.2f} ms,"
           f" p99 {w['p99_s'] * ms:.2f} ms: " + ", ".join(f"{k} {v * ms:.2f} ms" for k, v in parts.items()))
+    print("warm re-plan in process, CPU median / max by pushes left: " + ", ".join(
+        f"{k}: {v['median_s'] * ms:.1f} / {v['max_s'] * ms:.1f} ms" for k, v in doc["warm_replan_cpu_by_pushes_left"].items()))
     print(f"rollout: the wire median {doc['rollout_wire']['median_s'] * ms:.2f} ms, p99 "
           f"{doc['rollout_wire']['p99_s'] * ms:.2f} ms; a session's Info (no work) round trip median "
           f"{doc['session_info_round_trip']['median_s'] * ms:.2f} ms, p99 {doc['session_info_round_trip']['p99_s'] * ms:.2f} ms")

@@ -119,7 +119,7 @@ class Correction:
             phase=phase, rollout=j + 1, resolved=resolve, nlp_iterations=solution.iterations,
             nlp_success=solution.success, nlp_status=solution.return_status, objective=solution.objective,
             modifier_used=tuple(float(v) for v in used_modifier), position_error=pos_err,
-            yaw_error_deg=math.degrees(yaw_err), model_consistency=model_consistency(self.planner.params, solution),
+            yaw_error_deg=math.degrees(yaw_err), model_consistency=model_consistency(self.planner.params, solution, self.planner.law),
             rollout_wall_s=roll.wall_time, nlp_wall_s=solution.wall_time if resolve else 0.0, gauss_newton=newton,
             not_differentiable=roll.nondifferentiable,
         )

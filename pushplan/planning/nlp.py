@@ -31,6 +31,27 @@ COMPLEMENTARITY_EPS = 1e-8
 """Relaxation of ``sigma_k (1 - rho_k) = 0`` (slip, in units of max_step, times the
 distance of the force from the limit surface, relative)."""
 
+SOLVER_OPTIONS = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": 3000,
+                  "ipopt.tol": 1e-10, "ipopt.mu_strategy": "adaptive", "ipopt.bound_push": 1e-8,
+                  "ipopt.bound_frac": 1e-8}
+"""ipopt's options.  The starting point is complementary, with rho = 1 on its bound where
+sigma > 0: ipopt's default bound push (1e-2) would move it off the complementarity set."""
+WARM_START_OPTIONS = {"expand": True, "ipopt.warm_start_init_point": "yes"}
+"""Added for a solve from an earlier solution (a correction's re-solve, a session's re-plan),
+which has its own ipopt instance: ipopt starts from the given point with its multipliers,
+here zero, raised to ``warm_start_mult_bound_push`` (1e-3), instead of its least-squares
+estimate; the functions are expanded to CasADi's scalar graph (the same functions, 2-3 x
+cheaper per iteration).  On ``plan_rubber``'s closed loop (``benchmarks/serve_latency.py``)
+the re-plans took 36 / 153 / 23 / 15 / 16 iterations without these options and 48 / 21 /
+11 / 12 / 12 with them.  On the same requests the answers agree to 1.3e-9 m (commands) and
+5.9e-9 m (poses), except where the start without them crawls along the complementarity set
+(the 153 iterations): there it stopped, within ipopt's ``tol``, 2.3e-7 m of commands from
+the point these options reach, with an objective 1e-7 (relative) higher and the same
+reduced-model final pose (4e-16 m), along the nearly flat direction of how the effort is
+shared between the steps; three other ipopt set-ups (no scaling, the probing or LOQO mu
+oracle) reach the warm start's point within 1.1e-9 m.  A cold solve (from
+:meth:`ReducedPlanner.initial_guess`) keeps the options above alone."""
+
 
 @dataclass(frozen=True)
 class NlpSolution:
@@ -79,42 +100,14 @@ class ReducedPlanner:
 
     def __init__(self, params: PushParameters, spec: PlanSpec, springback: Springback | None = None,
                  initial_lag=(0.0, 0.0, 0.0)):
-        import casadi as ca
-
         if spec.yaw_targeted and not params.rotation:
             raise ValueError("a yaw target needs a reduced model with torsional parameters")
         self.params, self.horizon = params, spec.steps
+        self.law = push_law(params)  # for the numerical return mapping (simulate_reduced)
         # the pose the target is for: loaded, or at rest after the release (spring-back of the lag)
         self.springback = springback if spec.target_state == "rest" else None
-        K, d = spec.steps, (3 if spec.yaw_targeted else 2)
-        opti = ca.Opti()
-        A, rho, sigma = opti.variable(d, K), opti.variable(1, K), opti.variable(1, K)
-        par = {name: opti.parameter(n) for name, n in
-               (("target", 3), ("modifier", 3), ("lag0", 3), ("active", K), ("weights", 3))}
-        lower, upper, cmds, effort, pinned = _chain(ca, opti, push_law(params), (A, rho, sigma), par, spec)
-        opti.subject_to(opti.bounded(0, rho, 1))
-        opti.subject_to(sigma >= 0)
-        opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
-        final = lower[-1] + par["modifier"]
-        if self.springback is not None:
-            final = final + ca.DM(self.springback.fractions) * (upper[-1] - lower[-1])
-        miss = final[:2] - par["target"][:2]
-        w = par["weights"]  # 1 / tol^2, 1 / yaw_tol^2, effort_weight / m
-        objective = ca.sumsqr(miss) * w[0] + effort * w[2]
-        if spec.yaw_targeted:
-            objective += (final[2] - par["target"][2]) ** 2 * w[1]
-        opti.minimize(objective + pinned)
-        # the starting point is complementary, with rho = 1 on its bound where sigma > 0:
-        # ipopt's default bound push (1e-2) would move it off the complementarity set
-        opti.solver("ipopt", {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes",
-                              "ipopt.max_iter": 3000, "ipopt.tol": 1e-10,
-                              "ipopt.mu_strategy": "adaptive", "ipopt.bound_push": 1e-8,
-                              "ipopt.bound_frac": 1e-8})
-        self._ca, self.opti, self._par = ca, opti, par
-        self._A, self._rho, self._sigma = A, rho, sigma
-        self._lower, self._upper = ca.horzcat(*lower), ca.horzcat(*upper)
-        self._cmds = ca.horzcat(*cmds)
-        self._objective = objective
+        self._cold = _Program(self.law, spec, self.springback, SOLVER_OPTIONS)
+        self._warm = _Program(self.law, spec, self.springback, SOLVER_OPTIONS | WARM_START_OPTIONS)  # its own ipopt
         self._base = spec
         self.retarget(spec, initial_lag)
 
@@ -149,7 +142,7 @@ class ReducedPlanner:
         cmds = naive_commands(spec)
         cmds[:, :2] *= min(1.0, spec.max_step / max(float(np.hypot(*cmds[0, :2])), 1e-300))
         cmds[:, 2] = np.clip(cmds[:, 2], -spec.max_dtheta, spec.max_dtheta)
-        traj = simulate_reduced(p, cmds)
+        traj = simulate_reduced(p, cmds, self.law)
         m = np.array([p.mu_x, p.mu_y])
         f_local = traj.force[1:, :2] @ p.frame  # rows R^T f
         scaled = f_local / (p.normal_force * m)
@@ -166,20 +159,58 @@ class ReducedPlanner:
     def solve(self, modifier=(0.0, 0.0, 0.0), warm: NlpSolution | None = None) -> NlpSolution:
         """Solve for the commands of the active steps; ``modifier`` (3,) is added to the
         predicted final pose; ``warm``: a solve to start from (its variables, padded or
-        cut to the horizon), else :meth:`initial_guess`.
+        cut to the horizon; ipopt warm-started, :data:`WARM_START_OPTIONS`), else
+        :meth:`initial_guess` (a cold start).
 
         A failed ipopt run returns its last iterate with ``success = False``.
         """
-        opti, spec, par, m = self.opti, self.spec, self._par, self.spec.steps
-        opti.set_value(par["target"], list(spec.target))
-        opti.set_value(par["modifier"], [float(v) for v in modifier])
-        opti.set_value(par["lag0"], [float(v) for v in self.initial_lag])
-        opti.set_value(par["active"], [1.0] * m + [0.0] * (self.horizon - m))
-        opti.set_value(par["weights"], [spec.tolerance**-2, spec.yaw_tolerance**-2, spec.effort_weight / m])
+        spec, m = self.spec, self.spec.steps
+        values = {"target": list(spec.target), "modifier": [float(v) for v in modifier],
+                  "lag0": [float(v) for v in self.initial_lag], "active": [1.0] * m + [0.0] * (self.horizon - m),
+                  "weights": [spec.tolerance**-2, spec.yaw_tolerance**-2, spec.effort_weight / m]}
         guess = _padded(warm.variables, self.horizon, m) if warm is not None else self.initial_guess()
-        opti.set_initial(self._A, guess["A"])
-        opti.set_initial(self._rho, guess["rho"])
-        opti.set_initial(self._sigma, guess["sigma"])
+        program = self._warm if warm is not None else self._cold
+        return program.solve(values, guess, m)
+
+
+class _Program:
+    """The planning NLP of :class:`ReducedPlanner` (``law``: its :func:`push_law`)
+    transcribed in its own ``Opti`` with its own ipopt ``options`` (:data:`SOLVER_OPTIONS`,
+    :data:`WARM_START_OPTIONS`)."""
+
+    def __init__(self, law, spec: PlanSpec, springback: Springback | None, options: dict):
+        import casadi as ca
+
+        K, d = spec.steps, (3 if spec.yaw_targeted else 2)
+        opti = ca.Opti()
+        A, rho, sigma = opti.variable(d, K), opti.variable(1, K), opti.variable(1, K)
+        par = {name: opti.parameter(n) for name, n in
+               (("target", 3), ("modifier", 3), ("lag0", 3), ("active", K), ("weights", 3))}
+        lower, upper, cmds, effort, pinned = _chain(ca, opti, law, (A, rho, sigma), par, spec)
+        opti.subject_to(opti.bounded(0, rho, 1))
+        opti.subject_to(sigma >= 0)
+        opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
+        final = lower[-1] + par["modifier"]
+        if springback is not None:
+            final = final + ca.DM(springback.fractions) * (upper[-1] - lower[-1])
+        miss = final[:2] - par["target"][:2]
+        w = par["weights"]  # 1 / tol^2, 1 / yaw_tol^2, effort_weight / m
+        objective = ca.sumsqr(miss) * w[0] + effort * w[2]
+        if spec.yaw_targeted:
+            objective += (final[2] - par["target"][2]) ** 2 * w[1]
+        opti.minimize(objective + pinned)
+        opti.solver("ipopt", options)
+        self.opti, self.par, self.variables, self.K, self.d = opti, par, {"A": A, "rho": rho, "sigma": sigma}, K, d
+        # every output in one vector: one evaluation per solve (column-major blocks)
+        self.outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma)
+
+    def solve(self, values: dict, guess: dict, m: int) -> NlpSolution:
+        """Solve with parameter ``values`` from ``guess`` (variables by name), ``m`` active steps."""
+        opti = self.opti
+        for name, value in values.items():
+            opti.set_value(self.par[name], value)
+        for name, x in self.variables.items():
+            opti.set_initial(x, guess[name])
         t0 = time.perf_counter()
         with interrupts_kept():
             try:
@@ -188,21 +219,19 @@ class ReducedPlanner:
                 sol = opti.debug
         wall = time.perf_counter() - t0
         stats = opti.stats()
-        value = sol.value
-
-        def mat(x, rows):
-            return np.atleast_2d(np.asarray(value(x), float)).reshape(rows, -1)
-
+        out, K, d = np.asarray(sol.value(self.outputs), float).ravel(), self.K, self.d
+        parts = np.split(out, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K]))
         return NlpSolution(
-            commands=mat(self._cmds, 3).T[:m].copy(),
-            lower=mat(self._lower, 3).T[:m + 1].copy(),
-            upper=mat(self._upper, 3).T[:m + 1].copy(),
-            objective=float(value(self._objective)),
+            commands=parts[0].reshape(K, 3)[:m].copy(),
+            lower=parts[1].reshape(K + 1, 3)[:m + 1].copy(),
+            upper=parts[2].reshape(K + 1, 3)[:m + 1].copy(),
+            objective=float(parts[3][0]),
             iterations=int(stats.get("iter_count", -1)),
             success=bool(stats.get("success", False)),
             return_status=str(stats.get("return_status", "")),
             wall_time=wall,
-            variables={"A": mat(self._A, self._A.shape[0]), "rho": mat(self._rho, 1), "sigma": mat(self._sigma, 1)},
+            variables={"A": parts[4].reshape(K, d).T.copy(), "rho": parts[5][None, :].copy(),
+                       "sigma": parts[6][None, :].copy()},
         )
 
 
@@ -277,14 +306,15 @@ def _padded(variables: dict, horizon: int, active: int | None = None) -> dict:
     return out
 
 
-def model_consistency(params: PushParameters, solution: NlpSolution) -> float:
+def model_consistency(params: PushParameters, solution: NlpSolution, law=None) -> float:
     """Largest difference (m or rad) between the NLP's lower-face poses and the return
     mapping of its commands (:func:`simulate_reduced`): both go through the one
     :func:`push_law`, so this measures the relaxation of the NLP's complementarity
-    ``sigma (1 - rho) <= COMPLEMENTARITY_EPS`` (slip off the limit surface)."""
+    ``sigma (1 - rho) <= COMPLEMENTARITY_EPS`` (slip off the limit surface); ``law``:
+    ``push_law(params)`` if already built."""
     cmds = solution.commands.copy()
     if not params.rotation:
         cmds[:, 2] = 0.0
-    traj = simulate_reduced(params, cmds)
+    traj = simulate_reduced(params, cmds, law)
     return float(np.abs(traj.lower - solution.lower).max())
 

@@ -213,7 +213,7 @@ class ReducedTrajectory:
     sliding: np.ndarray
 
 
-def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
+def simulate_reduced(params: PushParameters, commands, law=None) -> ReducedTrajectory:
     """Run upper-face commands through the reduced model from the pressed, unloaded state.
 
     Each step is the backward-Euler return mapping (closest-point projection of the
@@ -226,6 +226,8 @@ def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
     commands : array, shape (K, 3)
         Upper-face increments ``(dx, dy, dtheta)``, m and rad; ``dtheta`` must be 0
         for a translation-only model.
+    law : casadi.Function, optional
+        ``push_law(params)``, built once by a caller that simulates often (default: built here).
 
     Returns
     -------
@@ -239,7 +241,7 @@ def simulate_reduced(params: PushParameters, commands) -> ReducedTrajectory:
     R, n = params.frame, params.normal_force
     limits = np.array([n * params.mu_x, n * params.mu_y, params.max_torque if params.rotation else math.inf])
     w = np.array([params.compliance, params.compliance, params.torsion_compliance if params.rotation else 1.0])
-    law = push_law(params)
+    law = push_law(params) if law is None else law
     K = len(u)
     upper, lower, force = np.zeros((K + 1, 3)), np.zeros((K + 1, 3)), np.zeros((K + 1, 3))
     sliding = np.zeros(K + 1, dtype=bool)

@@ -87,7 +87,7 @@ class FeRollouts:
     to the pose they leave (row 0 is zero)."""
 
     def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None,
-                 after: tuple[Command, ...] = ()):
+                 after: tuple[Command, ...] = (), keep_first: bool = False):
         self.model = model
         self.press = tuple(press)
         self.after = tuple(after)
@@ -97,6 +97,9 @@ class FeRollouts:
         self.press_time = 0.0
         self._at_rest: Pressed | None = None
         self._pressed: Pressed | None = None
+        # keep_first: the last rollout's first step, its start and command, for :meth:`advance`
+        self.keep_first = keep_first and model.pad is None
+        self._first: tuple[Pressed, Command, Run] | None = None
 
     @property
     def relative(self) -> bool:
@@ -143,9 +146,16 @@ class FeRollouts:
         if not commands:
             return start
         t0 = time.perf_counter()
-        run = self._drive(tuple(commands), start.state)
+        first, self._first = self._first, None
+        if first is not None and first[0] is start and _same_bits(first[1], commands[0]):
+            run = first[2]  # the step the last rollout took from here: the same state, computed once
+            start = Pressed(run.state, start.reports + tuple(run.reports), start.steps + tuple(run.summary.steps))
+            commands = commands[1:]
+        if commands:
+            run = self._drive(tuple(commands), start.state)
+            start = Pressed(run.state, start.reports + tuple(run.reports), start.steps + tuple(run.summary.steps))
         self.press_time += time.perf_counter() - t0
-        return Pressed(run.state, start.reports + tuple(run.reports), start.steps + tuple(run.summary.steps))
+        return start
 
     def advance(self, commands) -> None:
         """Execute ``commands`` (fe_contact Commands) from the start state: one FE step
@@ -217,8 +227,8 @@ class FeRollouts:
         """
         pressed = self.at_rest() if from_rest else self.pressed()
         t0 = time.perf_counter()
-        run = self._drive(planar_commands(commands), pressed.state, keep_states=True,
-                          release=self.release if release else None)
+        run = self._drive_from(pressed, planar_commands(commands), self.release if release else None,
+                               keep=self.keep_first and not from_rest)
         K = len(commands)
         loaded = run.reports[:K]
         lower = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in (pressed.reports[-1], *loaded)])
@@ -234,6 +244,24 @@ class FeRollouts:
         return Rollout(np.array(commands, float), lower, upper, tuple(loaded), tuple(run.summary.steps[:K]), wall,
                        rest, tuple(run.reports[K:]), self._pad_slip(run.states[1:K + 1], loaded))
 
+    def _drive_from(self, pressed: Pressed, commands: tuple[Command, ...], release: Release | None,
+                    keep: bool) -> Run:
+        """The run of ``commands`` (then ``release``) from ``pressed`` with every state; with
+        ``keep`` its first step is run alone and kept for :meth:`advance` (the state after
+        it keeps its factorised tangent, which the next step of one run would release: one
+        more tangent alive, a planning mesh's).  A step of a run does not depend on the
+        steps after it, so both ways give the same numbers (a release after a single
+        command is not split: it starts from the loaded step's report of its own run)."""
+        if not keep or not commands or (len(commands) == 1 and release is not None):
+            return self._drive(commands, pressed.state, keep_states=True, release=release)
+        first = self._drive(commands[:1], pressed.state, keep_states=True)
+        self._first = (pressed, commands[0], first)
+        if len(commands) == 1:
+            return first
+        rest = self._drive(commands[1:], first.state, keep_states=True, release=release)
+        rest.summary.steps = first.summary.steps + rest.summary.steps
+        return Run(self.model, rest.state, rest.summary, first.reports + rest.reports, first.states + rest.states[1:])
+
     def _pad_slip(self, states, reports) -> float:
         """:attr:`Rollout.pad_slip` of loaded steps' end ``states`` and ``reports``, m."""
         return self._pad_slip_of([s.upper_translation[:2] for s in states], reports)
@@ -245,3 +273,8 @@ class FeRollouts:
             return 0.0
         return float(max(np.hypot(*(np.asarray(c) - r.upper_centroid[:2]))
                          for c, r in zip(commanded, reports, strict=True)))
+
+
+def _same_bits(a: Command, b: Command) -> bool:
+    """Whether two commands are the same floats bit for bit (``-0.0`` is not ``0.0``)."""
+    return np.array([a.dx, a.dy, a.dz, a.dtheta]).tobytes() == np.array([b.dx, b.dy, b.dz, b.dtheta]).tobytes()
