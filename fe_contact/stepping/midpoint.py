@@ -24,12 +24,21 @@ from .held import joined_report, pad_loading
 from .measure import SEPARATION_FORCE, measure
 from .model import Model, State, StepReport
 from .newton import Equilibrium
+from .pad_load import pad_normal_load
 
-__all__ = ["MIDPOINT_LOAD_TOL", "extrapolated", "midpoint_half", "two_halves"]
+__all__ = ["MIDPOINT_LOAD_TOL", "extrapolated", "midpoint_half", "missed_load", "two_halves"]
 
 MIDPOINT_LOAD_TOL = 1e-6
 """A half step whose pad load missed its target by more than this fraction of the load scale ended past a jump
 of the load (the pad let go at once): it is not extrapolated."""
+
+
+def missed_load(model: Model, start: State, report: StepReport, load: float) -> bool:
+    """Whether a load step from ``start`` to ``load`` (N) ended past a jump of the
+    load (the pad let go at once): the pad's force of ``report`` off ``load`` by more
+    than ``MIDPOINT_LOAD_TOL`` of the larger of the start's load and the weight."""
+    scale = max(pad_normal_load(model, start), model.weight)
+    return abs(-float(report.upper_force[2]) - load) > MIDPOINT_LOAD_TOL * scale
 
 
 def midpoint_half(model: Model, state: State, command: PadLoad) -> PadLoad:
@@ -40,8 +49,7 @@ def midpoint_half(model: Model, state: State, command: PadLoad) -> PadLoad:
     then :func:`extrapolated`, and where that returns None a second backward-Euler
     step from the half step to ``P_b`` (:func:`two_halves`): at most two step solves
     per load step."""
-    start = float(state.reaction[model.n_lower:, 0].sum())
-    return replace(command, load=0.5 * (start + command.load))
+    return replace(command, load=0.5 * (pad_normal_load(model, state) + command.load))
 
 
 def extrapolated(model: Model, state: State, command: PadLoad, middle: State, first: StepReport, t0: float):
@@ -67,13 +75,10 @@ def extrapolated(model: Model, state: State, command: PadLoad, middle: State, fi
     half step stands and a second backward-Euler step goes on to ``P_b``
     (:func:`two_halves`).  ``t0`` (s, ``time.perf_counter``) the step's start.
     Returns ``(State, StepReport)`` or None."""
-    start = float(state.reaction[model.n_lower:, 0].sum())
-    mid_load = 0.5 * (start + command.load)
     U = 2.0 * middle.displacement - state.displacement
     r = 2.0 * middle.reaction - state.reaction
     _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
-    scale = max(start, model.weight)
-    if abs(-float(first.upper_force[2]) - mid_load) > MIDPOINT_LOAD_TOL * scale \
+    if missed_load(model, state, first, midpoint_half(model, state, command).load) \
             or np.any(_closed(state.reaction) != _closed(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
         return None
     translation = 2.0 * middle.upper_translation - state.upper_translation

@@ -50,7 +50,7 @@ from .model import Model, State
 from .newton import equilibrium
 from .predictor import commanded_pose, predictor
 
-__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step"]
+__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step", "pad_normal_load"]
 
 LOAD_TOL = 1e-10
 """The pad's load equation is met to this fraction of the load scale (the loaded pad load, or the weight)."""
@@ -308,7 +308,7 @@ def load_step(model: Model, state: State, command, t0: float, local_problem_hook
     gripper and ``plate`` its pose.  Returns ``(eq, report, translation,
     rotation, plate)``, the commanded pose and the plate's."""
     lx, ly, lz = model.mesh.size
-    current = float(state.reaction[model.n_lower:, 0].sum())
+    current = pad_normal_load(model, state)
     target = command.load if isinstance(command, PadLoad) else 0.0
     drive = LoadDrive(model, state, command, max(target, current, model.weight), model.material.young * lx * ly / lz)
     loading = pad_loading(model, state)
@@ -329,3 +329,8 @@ def _load_noise(local, q: np.ndarray, pad: np.ndarray, local_tol: float) -> floa
     that scale, over the pad's normal rows (a sum of ``n_pad`` errors)."""
     scale = max(np.linalg.norm(q), np.linalg.norm(local.r), np.linalg.norm(local.u))
     return 10.0 * max(local_tol, local.residual) * scale * math.sqrt(pad.sum())
+
+
+def pad_normal_load(model: Model, state: State) -> float:
+    """The pad's normal load at ``state`` (the sum of its contacts' normal forces), N."""
+    return float(state.reaction[model.n_lower:, 0].sum())

@@ -48,8 +48,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .midpoint import MIDPOINT_LOAD_TOL
+from .midpoint import missed_load
 from .model import Model, State, Status, StepReport
+from .pad_load import pad_normal_load
 from .sensitivity import lower_pose_derivative
 from .sequence import StepSequence
 from .step import half_command, step
@@ -261,7 +262,7 @@ def middle_load(model, state: State, step: LoadStep) -> tuple[float, np.ndarray]
     -dF_z`` the start's output (the step's own height, the last input, not in it)."""
     d_start_load = -np.array(step.d_start_out[step.force_z])
     d_start_load[-1] = 0.0
-    return 0.5 * (float(state.reaction[model.n_lower:, 0].sum()) + step.load), 0.5 * (d_start_load + step.d_load)
+    return 0.5 * (pad_normal_load(model, state) + step.load), 0.5 * (d_start_load + step.d_load)
 
 
 def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate, force_z: int, where: str):
@@ -274,8 +275,8 @@ def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate
     ended past a jump of the load (:mod:`~fe_contact.stepping.pad_load`: the pad let
     go at once, its load below the target) is no root: (status, message)."""
     start, _, report = part
-    carried, scale = -float(report.upper_force[2]), max(float(start.reaction[model.n_lower:, 0].sum()), model.weight)
-    if load > 0 and abs(carried - load) > MIDPOINT_LOAD_TOL * scale:
+    if load > 0 and missed_load(model, start, report, load):
+        carried = -float(report.upper_force[2])
         return Status.TANGENT_SINGULAR, (f"{where}: a load step ended past a jump of the pad's load ({carried:.6g} N "
                                          f"for {load:.6g} N: the pad let go at once): its derivative is not available")
     for name in ("displacement", "pose", "plate"):
