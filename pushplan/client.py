@@ -105,9 +105,11 @@ class Session:
                           closed_loop=closed_loop or None)
 
     def rollout(self, commands, jacobian: bool = False, mesh: str = "planning", release: bool = False) -> dict:
-        """Roll ``commands`` out from the session's current state: ``poses`` (K + 1, 3) and,
-        with ``jacobian``, the exact (3, K, 3) derivative of the final pose by the commands;
-        with ``release``, the ``rest`` pose after the scenario's release."""
+        """Roll ``commands`` out from the session's current state: the loaded ``poses``
+        (K + 1, 3); with ``release`` (the scenario must have a ``[release]``), ``rest``
+        ``{"pose", "status"}`` after it (else None); with ``jacobian``, ``jacobian`` (3, K, 3)
+        ``d poses[-1] / d commands`` (``None`` where no derivative exists, ``nondifferentiable``
+        says why) and, with ``release``, ``rest["jacobian"]``, the rest pose's."""
         return self._call("Rollout", commands=[list(map(float, c)) for c in commands], jacobian=jacobian,
                           mesh=mesh, release=release)
 

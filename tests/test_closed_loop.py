@@ -86,6 +86,7 @@ def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identi
                  *(["--identify"] if identify else []), *([] if identify else ["--no-recording"])])
     assert code == 0
     doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+    assert doc["pose_units"] == ["m", "m", "deg"]  # the file's yaw is in degrees, the service's in radians
     closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
     assert closed["within_tolerance"] and closed["position"] <= TOLERANCE
     assert open_["position"] >= 10 * closed["position"]
