@@ -431,6 +431,18 @@ def test_release_without_a_release_in_the_scenario_is_refused_naming_it(steel):
     assert steel.rollout(PUSHES)["rest"] is None
 
 
+def test_a_release_with_a_retreat_is_refused_its_rest_jacobian_naming_what(client):
+    """The stale "no exact derivatives with a release or a frictional pad" now says what is
+    refused: the rest pose's derivatives of a release that retreats; the loaded ones work."""
+    s = client.open(RELEASED.replace('mode = "lift"', 'mode = "lift"\naway = [2.0e-5, 0.0]'), verify=False)
+    try:
+        msg = _refused(lambda: s.rollout(PUSHES, jacobian=True, release=True))
+        assert msg.startswith("release: true with jacobian: the scenario's release retreats (release.away = [2e-05, 0.0]")
+        assert np.array(s.rollout(PUSHES, jacobian=True)["jacobian"]).shape == (3, 2, 3)
+    finally:
+        s.close()
+
+
 def test_a_rollout_says_which_pose_each_output_and_jacobian_is(client):
     """The loaded poses with the final one's Jacobian, the rest pose with its own, each
     against central differences of what it sits next to; release false: no rest."""
