@@ -414,8 +414,10 @@ def test_the_trials_bad_fields_are_refused_naming_field_and_value(client, steel)
     assert msg.startswith("session: expected a session id string") and msg.endswith("got 5")
     msg = _refused(lambda: steel.plan(target=[float("nan"), 0.0, 0.0]))
     assert msg.startswith("target: expected [x, y, yaw]") and "[NaN, 0.0, 0.0]" in msg
-    msg = _refused(lambda: client.call("Replan", {"session": steel.id, "executed": [], "observed": "here"}))
-    assert msg.startswith("observed:") and '"here"' in msg
+    msg = _refused(lambda: steel.replan([], "here"))  # the client sends what is not numbers as it is
+    assert msg.startswith("observed:") and msg.endswith('got "here"')
+    msg = _refused(lambda: steel.rollout("abc"))
+    assert msg.startswith("commands:") and msg.endswith('got "abc"')
     msg = _refused(lambda: steel.rollout([[1e-4, 0.0]]))
     assert msg.startswith("commands:") and "[[0.0001, 0.0]]" in msg
     msg = _refused(lambda: client.call("Replan", {"session": steel.id}))
