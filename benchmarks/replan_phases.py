@@ -115,16 +115,19 @@ def _median(rows: list[dict], key: str, names) -> dict:
     return {k: float(np.median([r[key].get(k, 0.0) for r in rows])) for k in names}
 
 
-def _by_pushes_left(runs: dict) -> dict:
-    """Per re-plan (keyed by the pushes left), each way's medians over the loops."""
-    out = {}
+def _by_pushes_left(runs: dict) -> list[dict]:
+    """One flat row per re-plan and way: medians over the loops (CPU s per phase, counts,
+    the FE steps' wall s per part)."""
+    out = []
     for i in range(len(runs[WAYS[0]][0])):
-        rows = {w: [loop[i] for loop in runs[w]] for w in WAYS}
-        out[str(rows[WAYS[0]][0]["pushes_left"])] = {w: {
-            "cpu_s": _median(rows[w], "cpu_s", ("total", *PHASES, "other")),
-            "counts": _median(rows[w], "counts", ("fe_steps", "newton_iterations", "local_iterations", "tangents",
-                                                  "nlp_iterations")),
-            "fe_step_wall_s": _median(rows[w], "fe_step_wall_s", FE_PARTS)} for w in WAYS}
+        for w in WAYS:
+            rows = [loop[i] for loop in runs[w]]
+            row = {"pushes_left": rows[0]["pushes_left"], "way": w}
+            row |= {f"cpu_{k}_s": v for k, v in _median(rows, "cpu_s", ("total", *PHASES, "other")).items()}
+            row |= _median(rows, "counts", ("fe_steps", "newton_iterations", "local_iterations", "tangents",
+                                            "nlp_iterations"))
+            row |= {f"fe_{k}_wall_s": v for k, v in _median(rows, "fe_step_wall_s", FE_PARTS).items()}
+            out.append(row)
     return out
 
 
@@ -148,13 +151,12 @@ def answers_apart(text: str, runs: dict) -> dict:
 
 def _print(result: dict) -> None:
     ms = 1e3
-    for left, row in result["by_pushes_left"].items():
-        for w in WAYS:
-            c, n = row[w]["cpu_s"], row[w]["counts"]
-            print(f"{left} pushes left, {w:>17}: CPU {c['total'] * ms:6.1f} ms = NLP {c['nlp'] * ms:5.1f} + FE rollouts "
-                  f"{c['fe_rollouts'] * ms:5.1f} + advance {c['advance'] * ms:4.1f} + other {c['other'] * ms:4.1f}; "
-                  f"{n['fe_steps']:.0f} steps, {n['newton_iterations']:.0f} Newton, {n['local_iterations']:.0f} local, "
-                  f"{n['tangents']:.0f} tangents, ipopt {n['nlp_iterations']:.0f} it")
+    for r in result["by_pushes_left"]:
+        print(f"{r['pushes_left']} pushes left, {r['way']:>17}: CPU {r['cpu_total_s'] * ms:6.1f} ms = NLP "
+              f"{r['cpu_nlp_s'] * ms:5.1f} + FE rollouts {r['cpu_fe_rollouts_s'] * ms:5.1f} + advance "
+              f"{r['cpu_advance_s'] * ms:4.1f} + other {r['cpu_other_s'] * ms:4.1f}; {r['fe_steps']:.0f} steps, "
+              f"{r['newton_iterations']:.0f} Newton, {r['local_iterations']:.0f} local, {r['tangents']:.0f} tangents, "
+              f"ipopt {r['nlp_iterations']:.0f} it")
     apart = result["answers_apart"]
     print("loop CPU median: " + ", ".join(f"{w} {v * ms:.1f} ms" for w, v in result["total_cpu_median_s"].items())
           + f"; answers apart: commands {apart['commands_m']:.2e} m, poses {apart['poses_m']:.2e} m (the "
