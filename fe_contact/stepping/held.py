@@ -46,8 +46,7 @@ def held_step(model: Model, state: State, command: Command, translation: np.ndar
         loading, gripper = held_loading(model), None
     else:
         loading, gripper = pad_loading(model, state), (translation, pad_motion(model, state, translation, rotation))
-    eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper,
-                     guess=guess)
+    eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper, guess=guess)
     if guess is not None and eq.status is not Status.CONVERGED:  # the guess misled it: from the predictor
         return held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume, extra)
     return eq, checked(model, measure(model, state, command, eq, t0, loading, extra))

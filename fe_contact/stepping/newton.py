@@ -174,7 +174,7 @@ class _Loop:
     @classmethod
     def start(cls, model, state, loading, consume, hook, gripper, tangent=None) -> "_Loop":
         """The loop's start: ``tangent``, else the one cached in ``state``, if it fits (the same free dofs)."""
-        tangent = (tangent or state.tangent.value) if model.reuses_tangent else None
+        tangent = (state.tangent.value if tangent is None else tangent) if model.reuses_tangent else None
         if tangent is not None and tangent.n_free != model.free_dofs.size:
             tangent = None  # cached before the gripper let go: other free dofs
         workspace = tangent.workspace.copy() if tangent is not None else None
