@@ -69,8 +69,8 @@ class RecordingSequence(StepSequence):
         super().__init__(*args, **kwargs)
         self.taken = []
 
-    def _step(self, model, state, command, consume=False):
-        out = super()._step(model, state, command, consume=consume)
+    def _step(self, model, state, command, consume=False, guess=None):
+        out = super()._step(model, state, command, consume=consume, guess=guess)
         self.taken.append((state, *out))
         return out
 

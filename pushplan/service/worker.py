@@ -167,7 +167,7 @@ class SessionState:
                 raise InputError("jacobian: no exact derivatives with a release or a frictional pad in the scenario")
             roll, jac = fe.rollout_with_jacobian(commands)
             return {"poses": roll.lower.tolist(), "jacobian": jac.tolist(), "wall_time_s": roll.wall_time}
-        roll = fe.rollout(commands, release=bool(payload.get("release", False)))
+        roll = fe.rollout(commands, release=bool(payload.get("release", False)), warm=False)  # not the planner's
         return {"poses": roll.lower.tolist(), "rest": None if roll.rest is None else roll.rest.tolist(),
                 "wall_time_s": roll.wall_time}
 
