@@ -139,13 +139,13 @@ def test_reverse_mode_refuses_a_frictional_pad():
         rollout_gradient(pad_model(2.0, gripper=Gripper()), PUSH, np.zeros((2, 9)))
 
 
-def _settling_case(options):
+def _settling_case(options, elements=(3, 3, 2)):
     """A frictional pad released after a press and a yawed push: every floor contact
     slips in the last load step (the pad opening) and the two steps after it (the
     rise to the release's height and the settle step) move nothing."""
     import math
 
-    m = Model(block_mesh((0.03, 0.03, 0.015), (3, 3, 2)), Material(1.5e6, 0.42, 1100.0),
+    m = Model(block_mesh((0.03, 0.03, 0.015), elements), Material(1.5e6, 0.42, 1100.0),
               Friction(0.5, 0.35, math.radians(35.0)), options=options, pad=Friction(0.8, 0.8, 0.0))
     return m, [Command(dz=-3e-4), Command(dx=5e-4, dy=-2e-4, dtheta=math.radians(0.5))], Release("lift", 5)
 
@@ -155,11 +155,14 @@ def test_contacts_the_settle_steps_leave_on_their_cone_are_no_transition():
     slipped as it opened stay on their cone's edge with no slip, ``phi = 0``, and do
     not leave it, ``d phi = 0`` (:mod:`~fe_contact.stepping.transitions`).  Was
     flagged as "step 8: 6 contacts at a transition (cone: 0)", every rest derivative
-    NaN: the cancelled ``d phi`` (its rounding, 3e-8 of its terms) taken for a push off
-    the edge; and at the default tolerance the settle steps' drift (1.3e-14 of the size)
-    linearised as slip along its noise's direction (the rest's yaw along dx[1] -0.020
-    for 0.021).  Against central differences to 1e-5 (measured 6.5e-7), and the same
-    derivative at a tolerance 1000x tighter."""
+    NaN: the cancelled ``d phi`` (its rounding, at most 2.3e-8 of the step's force
+    derivatives) taken for a push off the edge; and at the default tolerance the settle
+    steps' drift (1.3e-14 of the size) linearised as slip along its noise's direction
+    (the rest's yaw along dx[1] -0.020 for 0.021).  Against central differences to 1e-5
+    (measured 6.5e-7), and the same derivative at a tolerance 1000x tighter; the same
+    release of coarser blocks differentiable too (flagged before: 2 x 2 x 1 "slip",
+    3 x 3 x 1 "cone" along the angle, whose ``d phi`` cancels to 1.6e-6 of the
+    contact's own terms, 2.6e-8 of the step's)."""
     m, commands, release = _settling_case(SolverOptions())
     result = rollout_derivatives(m, commands, release=release)
     messages = [r.message for r in result.reports]
@@ -174,6 +177,10 @@ def test_contacts_the_settle_steps_leave_on_their_cone_are_no_transition():
     rest = slice(-9, -6)
     np.testing.assert_allclose(result.jacobian()[rest], exact.jacobian()[rest], rtol=0,
                                atol=1e-6 * np.abs(exact.jacobian()[rest]).max())
+    for elements in ((2, 2, 1), (3, 3, 1)):
+        coarse, _, _ = _settling_case(SolverOptions(), elements)
+        coarse_result = rollout_derivatives(coarse, commands, release=release)
+        assert coarse_result.differentiable, (elements, coarse_result.nondifferentiable())
 
 
 def test_a_contact_pushed_onto_its_cone_at_the_end_of_a_step_has_no_derivative():
