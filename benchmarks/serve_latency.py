@@ -91,9 +91,10 @@ def _truth_pose(model, state, command) -> tuple:
     return run.state, [s.lower_centroid[0], s.lower_centroid[1], s.lower_yaw]
 
 
-def closed_loop_requests(text: str) -> tuple[list[dict], list]:
+def closed_loop_requests(text: str, warm_steps: bool | None = None) -> tuple[list[dict], list]:
     """The closed loop once in this process: the ``Replan`` requests (executed pushes and the
-    truth's observed pose after them) and every answer's commands."""
+    truth's observed pose after them) and every answer's commands; ``warm_steps`` sets the
+    session planning mesh's :attr:`FeRollouts.warm_steps` (default: as a session sets it)."""
     from pushplan.config import parse_scenario
     from pushplan.config.plan import press_commands
     from pushplan.run import drive
@@ -106,6 +107,8 @@ def closed_loop_requests(text: str) -> tuple[list[dict], list]:
     truth = truth_sc.model()
     state = drive(truth, press_commands(truth_sc)).state
     session = SessionState(text, SCENARIO.stem, verify=False)
+    if warm_steps is not None:
+        session.session.coarse.warm_steps = warm_steps
     answer = session.plan({})
     requests, answers, executed = [], [answer["commands"]], []
     for _ in range(session.spec.steps - 1):

@@ -58,6 +58,7 @@ from .stepping.model import (
 from .stepping.model import LOCAL_METHODS
 from .stepping.pose import ZERO_MOTION, face_centroid_displacement, planar_yaw, twist_angle, wrap_angle
 from .stepping.command import PadLoad
+from .stepping.predictor import StepGuess
 from .stepping.release import ERROR_TOL_REMOVED, Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
 from .stepping.derivative_check import check_derivatives
@@ -123,6 +124,7 @@ __all__ = [
     "Status",
     "step",
     "StepReport",
+    "StepGuess",
     "StepSequence",
     "surface_quads",
     "TangentCache",

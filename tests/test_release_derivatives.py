@@ -137,3 +137,84 @@ def test_reverse_mode_refuses_a_frictional_pad():
 
     with pytest.raises(ValueError, match="frictional pad is not differentiated in reverse mode"):
         rollout_gradient(pad_model(2.0, gripper=Gripper()), PUSH, np.zeros((2, 9)))
+
+
+def _settling_case(options, elements=(3, 3, 2)):
+    """A frictional pad released after a press and a yawed push: every floor contact
+    slips in the last load step (the pad opening) and the two steps after it (the
+    rise to the release's height and the settle step) move nothing."""
+    import math
+
+    m = Model(block_mesh((0.03, 0.03, 0.015), elements), Material(1.5e6, 0.42, 1100.0),
+              Friction(0.5, 0.35, math.radians(35.0)), options=options, pad=Friction(0.8, 0.8, 0.0))
+    return m, [Command(dz=-3e-4), Command(dx=5e-4, dy=-2e-4, dtheta=math.radians(0.5))], Release("lift", 5)
+
+
+def test_contacts_the_settle_steps_leave_on_their_cone_are_no_transition():
+    """The steps after the pad opened are the identity: the floor contacts that
+    slipped as it opened stay on their cone's edge with no slip, ``phi = 0``, and do
+    not leave it, ``d phi = 0`` (:mod:`~fe_contact.stepping.transitions`).  Was
+    flagged as "step 8: 6 contacts at a transition (cone: 0)", every rest derivative
+    NaN: the cancelled ``d phi`` (its rounding, at most 2.3e-8 of the step's force
+    derivatives) taken for a push off the edge; and at the default tolerance the settle
+    steps' drift (1.3e-14 of the size) linearised as slip along its noise's direction
+    (the rest's yaw along dx[1] -0.020 for 0.021).  Against central differences to 1e-5
+    (measured 6.5e-7), and the same derivative at a tolerance 1000x tighter; the same
+    release of coarser blocks differentiable too (flagged before: 2 x 2 x 1 "slip",
+    3 x 3 x 1 "cone" along the angle, whose ``d phi`` cancels to 1.6e-6 of the
+    contact's own terms, 2.6e-8 of the step's)."""
+    m, commands, release = _settling_case(SolverOptions())
+    result = rollout_derivatives(m, commands, release=release)
+    messages = [r.message for r in result.reports]
+    assert len(messages) == 9 and messages[-3:] == ["converged"] * 3, messages  # opened, rise, settle
+    assert result.converged and result.differentiable, result.message or result.nondifferentiable()
+    assert np.all(np.isfinite(result.jacobian()))
+    check = check_derivatives(m, commands, release=release, rel_step=REL_STEP, parameters=())
+    assert check.max_error <= REL_TOL, check.worst()
+    tight, _, _ = _settling_case(TIGHT)
+    exact = rollout_derivatives(tight, commands, release=release)
+    assert exact.differentiable, exact.nondifferentiable()
+    rest = slice(-9, -6)
+    np.testing.assert_allclose(result.jacobian()[rest], exact.jacobian()[rest], rtol=0,
+                               atol=1e-6 * np.abs(exact.jacobian()[rest]).max())
+    for elements in ((2, 2, 1), (3, 3, 1)):
+        coarse, _, _ = _settling_case(SolverOptions(), elements)
+        coarse_result = rollout_derivatives(coarse, commands, release=release)
+        assert coarse_result.differentiable, (elements, coarse_result.nondifferentiable())
+
+
+def test_a_contact_pushed_onto_its_cone_at_the_end_of_a_step_has_no_derivative():
+    """A genuine edge of the law at a step's end: the push at which a corner contact
+    starts to slip (bisected to 1e-12 of the push; its force on the cone, its slip
+    below the solver's resolution).  A longer push slips it, a shorter one keeps it
+    inside its cone: the one-sided differences of the lower face's yaw along the push
+    differ (measured -0.61 and 0.22), so the result is NaN along the push and
+    names the contact ("cone"); a push 1e-3 shorter or longer has its derivative."""
+    from fe_contact.stepping.derivative_check import _plain
+    from fe_contact.stepping.model import initial_state
+    from fe_contact.stepping.step import step
+
+    m = Model(block_mesh(SIZE, (2, 2, 1)), Material(2e6, 0.3, 800.0), Friction(0.3, 0.15, 0.4), options=TIGHT)
+    press = Command(dz=-2e-4)
+    pressed = step(m, initial_state(m), press)[0]
+
+    def inside(dx):
+        r = step(m, pressed, Command(dx=dx))[1].reaction_local[0]
+        return r[0] - np.hypot(r[1] / 0.3, r[2] / 0.15) > 1e-12 * r[0]
+
+    lo, hi = 1e-4, 1.2e-4
+    assert inside(lo) and not inside(hi)
+    for _ in range(40):
+        lo, hi = ((lo + hi) / 2, hi) if inside((lo + hi) / 2) else (lo, (lo + hi) / 2)
+    result = rollout_derivatives(m, [press, Command(dx=hi)])
+    assert result.converged and not result.differentiable
+    on_edge = [t for t in result.transitions if t.contact == 0]
+    assert [(t.step, t.kind) for t in on_edge] == [(2, "cone")], result.transitions
+    assert result.inputs.index("dx[1]") in on_edge[0].inputs
+    assert np.all(np.isnan(result.d_commands[1, :3, 1, 0]))
+    h = 1e-3 * hi
+    rest = [_plain(m, [press, Command(dx=hi + s * h)], None)[1, 2] for s in (-1, 0, 1)]
+    left, right = (rest[1] - rest[0]) / h, (rest[2] - rest[1]) / h
+    assert abs(right - left) > 0.5 * max(abs(left), abs(right)), (left, right)
+    for dx in (hi - h, hi + h):
+        assert rollout_derivatives(m, [press, Command(dx=dx)]).differentiable

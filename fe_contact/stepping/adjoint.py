@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .derivatives import OUTPUTS, PARAMETERS, _check
-from .release_derivatives import report_outputs
+from .step_derivative import report_outputs
 from .model import Model, State, Status, TangentCache, initial_state
 from .predictor import commanded_pose
 from .sensitivity import (HeldLinearisation, lower_pose_derivative, plate_wrench_adjoint, plate_wrench_derivative,

@@ -9,7 +9,7 @@ import numpy as np
 
 from .derivatives import (COMPONENTS, OUTPUTS, _check, input_sizes, parameter_values, rollout_derivatives,
                           with_parameters)
-from .release_derivatives import report_outputs
+from .step_derivative import report_outputs
 from .model import Model, State
 from .release import Release
 from .sequence import StepSequence

@@ -47,15 +47,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..fem.loads import Gripper
-from .model import Command, Friction, Model, State, Status, TangentCache, initial_state
+from .model import Command, Friction, Model, State, Status, initial_state
 from .release import Release, rest_check
 from .command import PadLoad
 from .release_derivatives import (LoadStep, RecordingSequence, load_step_derivative, put_down_root,
-                                  release_height_derivative, report_outputs, whole_steps)
-from .predictor import commanded_pose
-from .pad_sensitivity import PadLinearisation, solve_compliant_pad
-from .sensitivity import HeldLinearisation, lower_pose_derivative, solve_compliant, upper_pose_jacobian
-from .transitions import Transition, flipping_inputs, margins, summary
+                                  release_height_derivative, whole_steps)
+from .step_derivative import StateDerivative, step_derivative
+from .transitions import Transition, flipping_inputs, summary
 
 COMPONENTS = ("dx", "dy", "dz", "dtheta")
 PARAMETERS = ("mu_x", "mu_y", "angle", "young", "poisson", "density", "stiffness_xy", "stiffness_yaw")
@@ -333,7 +331,7 @@ def _result(model, commands, parameters, sequence, run: _Run, swept, release, t0
 
 
 def _sequence_step(model, sequence, k, K, state, new_state, report, run: _Run):
-    """:func:`_step_derivative` of the ``k``-th step of ``sequence`` (a command's
+    """:func:`~fe_contact.stepping.step_derivative.step_derivative` of the ``k``-th step of ``sequence`` (a command's
     for ``k < K``, else a release step's), through the parts it was taken in:
     the halves of a frictional pad's step that failed whole, the parts a release
     step's error control kept (a part of a fraction ``f`` of the whole command
@@ -345,9 +343,9 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, run: _Run):
     if load is not None:  # a pad's load step: backward Euler or the midpoint rule
         taken = list(sequence.taken)
         step = LoadStep(load[0], _load_derivative(model, load, run), run.d_out[min(k - 1, len(run.d_out) - 1)],
-                        sequence.schedule.midpoint(PadLoad(load[0])), OUTPUTS.index("force_z"))
+                        sequence.schedule.midpoint(PadLoad(load[0])), OUTPUTS.index("force_z"), seeds)
         return load_step_derivative(model, taken, sequence.parts(new_state), state, new_state, report, step,
-                                    d_state, lambda *args: _step_derivative(model, *args, seeds))
+                                    d_state)
     taken = [(state, new_state, report)] if k < K else sequence.parts(new_state)
     parts = whole_steps(model, taken)
     if k < K:
@@ -359,7 +357,7 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, run: _Run):
     found = []
     for start, end, part in parts:
         fraction = 1.0 if size[c] == 0 else _command_array(part.command)[c] / size[c]
-        result = _step_derivative(model, start, end, part, d_state, fraction * d_whole, seeds)
+        result = step_derivative(model, start, end, part, d_state, fraction * d_whole, seeds)
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
@@ -398,87 +396,6 @@ def _load_derivative(model, load, run: _Run) -> np.ndarray:
     -F_z`` of the release's start and of the weight ``rho g V``."""
     return load[1] * -run.path[0][1] + load[2] * model.weight / model.material.density * \
         run.seeds[PARAMETERS.index("density")]
-
-
-@dataclass(frozen=True)
-class StateDerivative:
-    """Derivative of a state along J inputs: ``displacement`` (n_dofs, J), m;
-    the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J); the plate pose (3, J)."""
-
-    displacement: np.ndarray
-    pose: np.ndarray
-    plate: np.ndarray
-
-
-def _step_derivative(model, state, new_state, report, d_state, d_command, seeds):
-    """The derivatives of the step from ``state`` that ended in ``(new_state,
-    report)``: (state with the tangent at the converged configuration, d_state,
-    outputs (9,), d_outputs (9, J), the margins of its contacts
-    :func:`~fe_contact.stepping.transitions.margins` with the contacts to skip),
-    or (status, message) if the step or its linearisation failed."""
-    if not report.converged:
-        return report.status, f"step {state.step_index + 1}: {report.message}"
-    translation, rotation = commanded_pose(state, report.command)
-    d_pose = d_state.pose + d_command
-    if model.pad is not None:
-        return _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation)
-    lin = HeldLinearisation(model, state.displacement, report.displacement, report.reaction_local,
-                            report.node_status)
-    if lin.failure:
-        return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
-    J = d_pose.shape[1]
-    if model.gripper.rigid:
-        d_upper = upper_pose_jacobian(model, rotation) @ d_pose
-        held = lin.solve(d_state.displacement, d_upper, seeds[:6])
-        d_plate = d_pose[[0, 1, 3]]
-    else:
-        held, d_plate = solve_compliant(model, report, lin, d_state.displacement, d_pose, seeds,
-                                        np.array([translation[0], translation[1], rotation]))
-    dU = held.displacement
-    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    outputs = report_outputs(report, new_state)
-    new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
-    return (new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J),
-            _margins(model, lin, held, seeds))
-
-
-def _margins(model, lin, held, seeds):
-    """The branch margins of a step's contacts and their derivatives
-    (:func:`~fe_contact.stepping.transitions.margins`; ``mu_x``, ``mu_y`` the
-    floor's), and no contact skipped."""
-    n, n_lower = model.n_contacts, model.n_lower
-    dmu = np.zeros((n, 2, seeds.shape[1]))
-    dmu[:n_lower] = seeds[:2]
-    m, dm, kind = margins(lin.node_status, lin.r, lin.u_local, model.contacts.mu_x, model.contacts.mu_y,
-                          held.reaction, held.contact_motion, dmu)
-    return m, dm, kind, np.zeros(n, dtype=bool)
-
-
-def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds, translation, rotation):
-    """:func:`_step_derivative` of a step with a frictional pad
-    (:class:`~fe_contact.stepping.pad_sensitivity.PadLinearisation`; a compliant
-    gripper's plate by :func:`~fe_contact.stepping.pad_sensitivity.solve_compliant_pad`)."""
-    if "half steps" in report.message:  # split where the whole step failed: the halves' middle is not kept
-        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1} was taken in halves ({report.message}): "
-                                         "its derivative through them is not available")
-    r = np.vstack([report.reaction_local, report.pad_reaction])
-    if model.gripper.rigid:
-        lin = PadLinearisation(model, state, report.displacement, r, translation, rotation)
-        held = None if lin.failure else lin.solve_pad(d_state.displacement, d_state.pose, d_pose, seeds[:6])
-        d_plate = d_pose[[0, 1, 3]]
-    else:
-        commanded = np.array([*translation, rotation])
-        d_start_pose = np.vstack([d_state.plate[:2], d_state.pose[2], d_state.plate[2]])
-        d_stiffness = np.vstack([seeds[6], seeds[6], seeds[7]])
-        lin, held, d_plate = solve_compliant_pad(model, state, report.displacement, r, commanded,
-                                                 np.array(new_state.plate), d_state.displacement, d_start_pose,
-                                                 d_pose, seeds[:6], d_stiffness)
-    if lin.failure:
-        return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
-    dU = held.displacement
-    d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    return (new_state, StateDerivative(dU, d_pose, d_plate), report_outputs(report, new_state), d_out,
-            _margins(model, lin, held, seeds))
 
 
 __all__ = ["COMPONENTS", "PARAMETERS", "OUTPUTS", "RolloutDerivatives", "Transition", "applicable_parameters",

@@ -15,30 +15,40 @@ import numpy as np
 from ..fem.loads import NO_LOADING, Loading
 from .law_check import checked
 from .measure import SEPARATION_FORCE, measure
-from .model import Command, Model, State, StepReport, TangentCache
+from .model import Command, Model, State, Status, StepReport, TangentCache
 from .newton import Equilibrium, equilibrium
-from .predictor import predictor, upper_face_displacement
+from .predictor import StepGuess, guessed_start, upper_face_displacement
 
 
 def held_step(model: Model, state: State, command: Command, translation: np.ndarray, rotation: float,
               t0: float, local_problem_hook=None, consume: bool = False,
-              extra: dict | None = None) -> tuple[Equilibrium, StepReport]:
+              extra: dict | None = None, guess: StepGuess | None = None) -> tuple[Equilibrium, StepReport]:
     """Equilibrium and report of a step with the upper face held by the plate
     at pose ``(translation, rotation)`` (the rigid drive; the compliant
     gripper's trial poses).  A frictional pad that carries nothing at the
     step's start and rises drags nothing: the Newton loop starts at the state
     (the predictor would stretch the block by the rise: measured 144 Newton
-    iterations for a 5 mm rise after a release, 1-2 from the state)."""
+    iterations for a 5 mm rise after a release, 1-2 from the state).
+
+    ``guess`` (:class:`~fe_contact.stepping.predictor.StepGuess`, without a
+    frictional pad only) starts the loop at the guessed displacements and contact
+    forces; if the loop does not converge from there, the step is solved again
+    from the predictor (a guess never fails a step that converges without it: at
+    most two Newton loops; with ``consume`` the second may start without the
+    state's cached tangent, which the first released)."""
     pad_normal = state.reaction[model.n_lower:, 0]
     open_pad = model.pad is not None and command.dz >= 0 and pad_normal.size > 0 and \
         bool(np.all(pad_normal <= SEPARATION_FORCE * np.abs(state.reaction).max()))
-    U = np.array(state.displacement, dtype=float) if open_pad else predictor(model, state, command)
+    guess = guess if model.pad is None else None
+    U = np.array(state.displacement, dtype=float) if open_pad else guessed_start(model, state, command, guess)
     if model.pad is None:
         U[model.held_nodes] = upper_face_displacement(model, translation, rotation)
         loading, gripper = held_loading(model), None
     else:
         loading, gripper = pad_loading(model, state), (translation, pad_motion(model, state, translation, rotation))
-    eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper)
+    eq = equilibrium(model, state, U, local_problem_hook, consume, loading, gripper, guess=guess)
+    if guess is not None and eq.status is not Status.CONVERGED:  # the guess misled it: from the predictor
+        return held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume, extra)
     return eq, checked(model, measure(model, state, command, eq, t0, loading, extra))
 
 

@@ -98,7 +98,8 @@ def _timed(timings: dict, phase: str):
 
 
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
-                consume: bool = False, loading: Loading = NO_LOADING, gripper=None) -> Equilibrium:
+                consume: bool = False, loading: Loading = NO_LOADING, gripper=None,
+                guess=None) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
     the upper face at its commanded pose (``U`` may be updated in place).
 
@@ -108,9 +109,14 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
     ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
     ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`, or a
-    :class:`~fe_contact.stepping.pad_load.LoadDrive` (the pad's height solved with its load)."""
-    loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper)
-    r = np.array(state.reaction, dtype=float)
+    :class:`~fe_contact.stepping.pad_load.LoadDrive` (the pad's height solved with its load).
+    ``guess`` (:class:`~fe_contact.stepping.predictor.StepGuess`, ``U`` its start): its
+    contact forces are the first ones (default ``state``'s) and its tangent, if it has
+    one, is kept instead of ``state``'s; the step's force scale is the state's either
+    way (the same convergence test)."""
+    loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper,
+                       None if guess is None else guess.tangent)
+    r = np.array(state.reaction if guess is None else guess.reaction, dtype=float)
     for it in range(model.options.newton_max_iter + 1):
         mixed = loop.anderson is not None and loop.anderson.mixed  # no convergence test at a mix
         R, f_contact, failure = loop.balance(U, r, it)
@@ -166,9 +172,9 @@ class _Loop:
     plain: bool = True
 
     @classmethod
-    def start(cls, model, state, loading, consume, hook, gripper) -> "_Loop":
-        """The loop's start: the tangent cached in ``state`` if it fits (the same free dofs)."""
-        tangent = state.tangent.value if model.reuses_tangent else None
+    def start(cls, model, state, loading, consume, hook, gripper, tangent=None) -> "_Loop":
+        """The loop's start: ``tangent``, else the one cached in ``state``, if it fits (the same free dofs)."""
+        tangent = (state.tangent.value if tangent is None else tangent) if model.reuses_tangent else None
         if tangent is not None and tangent.n_free != model.free_dofs.size:
             tangent = None  # cached before the gripper let go: other free dofs
         workspace = tangent.workspace.copy() if tangent is not None else None
@@ -188,8 +194,9 @@ class _Loop:
         if failure is not None:
             return None, None, failure
         contact_world, f_contact = _contact_forces(model, r)
-        if it == 0:
-            self.scale0 = _command_force_scale(model, self.state, U, f_contact, self.loading)
+        if it == 0:  # with the state's contact forces, whatever the loop starts from
+            f_start = _contact_forces(model, self.state.reaction)[1]
+            self.scale0 = _command_force_scale(model, self.state, U, f_start, self.loading)
         R, self.rel_res = _out_of_balance(model, self.f_int, f_contact, contact_world, self.scale0)
         return R, f_contact, None
 

@@ -1,5 +1,5 @@
 """Start of a step: the commanded pose of the upper face and the predictor of
-the Newton loop.
+the Newton loop, or a guessed start from a converged step like it (:class:`StepGuess`).
 
 The upper face is prescribed: for a cumulative translation ``t`` (3,) m and
 rotation ``theta`` rad about the vertical axis through the translated centre
@@ -16,6 +16,7 @@ arrays (n_nodes, 3), m.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -83,4 +84,60 @@ def predictor(model: Model, state: State, command: Command) -> np.ndarray:
     U[:, 1] += sn * rel[:, 0] + cs * rel[:, 1] - rel[:, 1] + command.dy
     Z = model.mesh.nodes[:, 2]
     U[:, 2] += command.dz * (Z - Z.min()) / (Z.max() - Z.min())
+    return U
+
+
+@dataclass(frozen=True)
+class StepGuess:
+    """A start for a step's Newton loop taken from a converged step like it (the same
+    push of an earlier rollout of nearly the same commands, from nearly the same state).
+
+    ``correction`` (n_nodes, 3), m: that step's converged displacement less its own
+    :func:`predictor`, the part of the answer the rigid carry does not give (the
+    block's elastic lag and where its lower face stuck or slid); ``reaction``
+    (n_contacts, 3), N, local ``(n, t_x, t_y)``: its converged contact forces.  The
+    guessed start of a step is its own predictor plus ``correction``, with
+    ``reaction`` as the first contact forces (:func:`guessed_start`): for the same
+    start and command it is the earlier step's answer itself, for a small change of
+    either, that answer moved with them.  ``tangent`` (optional, a
+    :class:`~fe_contact.stepping.tangent.Tangent` of the same model) is the tangent
+    that step ended with, kept by the modified Newton loop instead of the start
+    state's (a tangent near this step's answer, not its start: fewer iterations and
+    refreshes; a guess holding one keeps its factors alive).  Only where the Newton
+    loop starts: the step converges to the same tolerances
+    (``SolverOptions.newton_tol``, ``local_tol``), its convergence test unchanged.
+    """
+
+    correction: np.ndarray
+    reaction: np.ndarray
+    tangent: object = None
+
+    @classmethod
+    def of(cls, model: Model, start: State, command: Command, end: State, tangent=None) -> "StepGuess":
+        """The guess a converged step from ``start`` by ``command`` to ``end`` gives, with
+        ``tangent``, the one that step ended with (``end.tangent.value`` before a later
+        step released it), to keep."""
+        return cls(end.displacement - predictor(model, start, command), np.array(end.reaction, dtype=float), tangent)
+
+    def check(self, model: Model) -> None:
+        """ValueError unless the arrays have the model's shapes and are finite and the
+        tangent, if any, is one of the model's free dofs and contacts."""
+        for name, shape in (("correction", (model.mesh.n_nodes, 3)), ("reaction", (model.n_contacts, 3))):
+            a = getattr(self, name)
+            if not isinstance(a, np.ndarray) or a.shape != shape or not np.all(np.isfinite(a)):
+                raise ValueError(f"guess.{name} must be a finite array of shape {shape}, got "
+                                 f"{getattr(a, 'shape', type(a).__name__)}")
+        t = self.tangent
+        if t is not None and (getattr(t, "n_free", None) != model.free_dofs.size
+                              or getattr(t, "W_scaled", np.zeros(0)).shape != (3 * model.n_contacts,) * 2):
+            raise ValueError(f"guess.tangent must be a tangent of this model's {model.free_dofs.size} free dofs "
+                             f"and {model.n_contacts} contacts, got {type(t).__name__}")
+
+
+def guessed_start(model: Model, state: State, command: Command, guess: StepGuess | None) -> np.ndarray:
+    """The start of a step's Newton loop (n_nodes, 3), m: :func:`predictor`, plus
+    ``guess.correction`` when there is a guess."""
+    U = predictor(model, state, command)
+    if guess is not None:
+        U += guess.correction
     return U

@@ -54,9 +54,10 @@ from .pad_load import pad_normal_load
 from .sensitivity import lower_pose_derivative
 from .sequence import StepSequence
 from .step import half_command, step
+from .step_derivative import report_outputs, step_derivative
 
 __all__ = ["LoadStep", "RecordingSequence", "load_step_derivative", "load_step_root", "put_down_root",
-           "release_height_derivative", "report_outputs", "whole_steps"]
+           "release_height_derivative", "whole_steps"]
 
 
 class RecordingSequence(StepSequence):
@@ -69,8 +70,8 @@ class RecordingSequence(StepSequence):
         super().__init__(*args, **kwargs)
         self.taken = []
 
-    def _step(self, model, state, command, consume=False):
-        out = super()._step(model, state, command, consume=consume)
+    def _step(self, model, state, command, consume=False, guess=None):
+        out = super()._step(model, state, command, consume=consume, guess=guess)
         self.taken.append((state, *out))
         return out
 
@@ -207,6 +208,9 @@ class LoadStep:
         Taken by the implicit midpoint rule.
     force_z : int
         The row of the pad's vertical force in the outputs.
+    seeds : ndarray, shape (8, J)
+        The parameters' derivatives along the inputs
+        (:func:`~fe_contact.stepping.step_derivative.step_derivative`).
     """
 
     load: float
@@ -214,18 +218,19 @@ class LoadStep:
     d_start_out: np.ndarray
     midpoint: bool
     force_z: int
+    seeds: np.ndarray
 
 
 def load_step_derivative(model, taken: list, chain: list | None, state: State, new_state: State, report: StepReport,
-                         step: LoadStep, d_state, differentiate):
+                         step: LoadStep, d_state):
     """The derivatives of a load step from ``state`` that ended in ``(new_state,
     report)`` (module docstring: backward Euler, or the midpoint rule).  ``taken``
     are the backward-Euler steps the step solved, in order, as ``(start, end,
     report)``; ``chain`` those of them that lead to ``new_state`` (None if none
     does: the midpoint's half step, extrapolated); ``d_state`` the start's
-    :class:`~fe_contact.stepping.derivatives.StateDerivative`;
-    ``differentiate(start, end, report, d_state, d_command)`` a backward-Euler
-    step's derivatives (:func:`~fe_contact.stepping.derivatives._step_derivative`).
+    :class:`~fe_contact.stepping.step_derivative.StateDerivative`; each
+    backward-Euler step's derivatives by
+    :func:`~fe_contact.stepping.step_derivative.step_derivative`.
     Returns (state, d_state, outputs, d_outputs, the margins of each solve's
     contacts), or (status, message)."""
     where = f"step {state.step_index + 1}"
@@ -238,7 +243,7 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
     if step.midpoint and not chain:  # the half step, extrapolated
         if not taken or not taken[0][2].converged:
             return Status.TANGENT_SINGULAR, f"{where}: the midpoint's half step was not found"
-        half = _rooted(model, taken[0], d_state, *middle, differentiate, step.force_z, where)
+        half = _rooted(model, taken[0], d_state, *middle, step, where)
         if isinstance(half[0], Status):
             return half
         return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
@@ -247,7 +252,7 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
         return Status.TANGENT_SINGULAR, f"{where}: the parts it was taken in were not found"
     found = []
     for part, (load, d_load) in zip(chain, loads, strict=True):
-        result = _rooted(model, part, d_state, load, d_load, differentiate, step.force_z, where)
+        result = _rooted(model, part, d_state, load, d_load, step, where)
         if isinstance(result[0], Status):
             return result
         d_state = result[1]
@@ -265,7 +270,7 @@ def middle_load(model, state: State, step: LoadStep) -> tuple[float, np.ndarray]
     return 0.5 * (pad_normal_load(model, state) + step.load), 0.5 * (d_start_load + step.d_load)
 
 
-def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate, force_z: int, where: str):
+def _rooted(model, part, d_state, load: float, d_load: np.ndarray, step: LoadStep, where: str):
     """A backward-Euler load step ``part`` to ``load`` (``d_load`` (J,) its
     derivative): the step's sensitivity with its own height the last input,
     then that height the root of the load
@@ -283,11 +288,11 @@ def _rooted(model, part, d_state, load: float, d_load: np.ndarray, differentiate
         getattr(d_state, name)[:, -1] = 0.0  # the last input: this step's own height
     d_command = np.zeros((4, d_state.pose.shape[1]))
     d_command[2, -1] = 1.0
-    result = differentiate(*part, d_state, d_command)
+    result = step_derivative(model, *part, d_state, d_command, step.seeds)
     if isinstance(result[0], Status):
         return result
     end, d_end, outputs, d_out, (m, dm, kind, skip) = result
-    d_out, arrays = load_step_root(d_out, force_z, load, d_load,
+    d_out, arrays = load_step_root(d_out, step.force_z, load, d_load,
                                    (d_end.displacement, d_end.pose, d_end.plate, dm.reshape(-1, dm.shape[-1])))
     if load == 0:
         skip = skip | (np.arange(m.shape[0]) >= model.n_lower)
@@ -307,10 +312,3 @@ def _extrapolated(model, new_state: State, report: StepReport, d_start, half, d_
     d_out = np.vstack([lower_pose_derivative(model, new_state.displacement, d_end.displacement),
                        2.0 * d_out_mid[3:6] - d_start_out[3:6], d_end.plate])
     return new_state, d_end, report_outputs(report, new_state), d_out, [found]
-
-
-def report_outputs(report: StepReport, state: State) -> np.ndarray:
-    """:data:`~fe_contact.stepping.derivatives.OUTPUTS` of a converged step (9,)
-    ending in ``state`` (the plate pose of the state: a rigid drive's report
-    carries the start's)."""
-    return np.concatenate([report.lower_centroid[:2], [report.lower_yaw], report.upper_force, state.plate])

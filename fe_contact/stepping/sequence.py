@@ -40,6 +40,10 @@ class StepSequence:
         made the start state itself.  Later states are the sequence's own.
     stop_on_failure : bool
         End after a step that did not converge.
+    guesses : sequence of StepGuess or None, optional
+        Where the Newton loop of ``commands[i]`` starts (``guesses[i]``, see
+        :func:`~fe_contact.stepping.step.step`); commands past its end and the
+        release's steps start from the predictor.
 
     Attributes
     ----------
@@ -53,8 +57,9 @@ class StepSequence:
 
     def __init__(self, model: Model, commands=(), state: State | None = None, *, release: Release | None = None,
                  loaded: StepReport | None = None, local_problem_hook=None, consume_start: bool | None = None,
-                 stop_on_failure: bool = True):
+                 stop_on_failure: bool = True, guesses=()):
         self.model, self.commands, self.release, self.loaded = model, tuple(commands), release, loaded
+        self.guesses = tuple(guesses)
         self.hook, self.stop_on_failure = local_problem_hook, stop_on_failure
         self.consume_start = state is None if consume_start is None else consume_start
         self.state = initial_state(model) if state is None else state
@@ -67,7 +72,8 @@ class StepSequence:
             if self.schedule is not None and self.schedule.midpoint(command):  # a pad's load step, midpoint rule
                 self.state, report = self._midpoint(command, consume)
             else:
-                self.state, report = self._step(self.model, self.state, command, consume=consume)
+                guess = self.guesses[i] if i < min(len(self.guesses), len(self.commands)) else None
+                self.state, report = self._step(self.model, self.state, command, consume=consume, guess=guess)
             self.reports.append(report)
             yield self.state, report
             if not report.converged and self.stop_on_failure:
@@ -87,9 +93,9 @@ class StepSequence:
         last, second = self._step(self.model, middle, command, consume=True)
         return two_halves(start, first, last, second) if second.converged else (middle, second)
 
-    def _step(self, model: Model, state: State, command, consume: bool = False):
+    def _step(self, model: Model, state: State, command, consume: bool = False, guess=None):
         """:func:`~fe_contact.stepping.step.step` with the sequence's local-problem hook."""
-        return step(model, state, command, self.hook, consume=consume)
+        return step(model, state, command, self.hook, consume=consume, guess=guess)
 
     def _commands(self):
         """The commands, then the release's, each chosen after the last report."""

@@ -27,11 +27,11 @@ from .held import held_step, joined_report, next_state
 from .command import PadLoad
 from .model import Command, Model, State, StepReport
 from .pad_load import load_step
-from .predictor import commanded_pose
+from .predictor import StepGuess, commanded_pose
 
 
 def step(model: Model, state: State, command: Command, local_problem_hook=None, *,
-         consume: bool = False) -> tuple[State, StepReport]:
+         consume: bool = False, guess: StepGuess | None = None) -> tuple[State, StepReport]:
     """Apply one load step.
 
     Parameters
@@ -57,6 +57,10 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
         one factorised tangent is alive instead of two (at 2e5 dofs a tangent
         is about 4.5 GB).  The results are the same; ``state`` merely loses its
         cache.  Leave False to branch from ``state``.
+    guess : StepGuess, optional
+        The Newton loop's start (:class:`~fe_contact.stepping.predictor.StepGuess`):
+        the same answer to the tolerances, in fewer iterations from a close guess.
+        The rigid drive only (a compliant gripper or frictional pad ignores it).
 
     Returns
     -------
@@ -72,14 +76,15 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     ValueError
         An argument of the wrong type, or a state of the wrong sizes or not finite.
     """
-    _check_arguments(model, state, command)
+    _check_arguments(model, state, command, guess)
     t0 = time.perf_counter()
     if model.pad is not None:  # a pose or a load (PadLoad); a compliant gripper's plate solved in the loop
         return _split_step(model, state, command, t0, local_problem_hook, 0)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
     translation, rotation = commanded_pose(state, command)
-    eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume)
+    eq, report = held_step(model, state, command, translation, rotation, t0, local_problem_hook, consume,
+                           guess=guess)
     if not report.converged:
         return state, report
     return next_state(state, eq, translation, rotation, report), report
@@ -138,7 +143,7 @@ def _split_step(model: Model, state: State, command, t0: float, hook, depth: int
     return replace(end, step_index=state.step_index + 1), report
 
 
-def _check_arguments(model, state, command) -> None:
+def _check_arguments(model, state, command, guess=None) -> None:
     """ValueError naming the offending argument, type or size."""
     if not isinstance(model, Model):
         raise ValueError(f"model must be a Model, got {type(model).__name__}")
@@ -158,3 +163,5 @@ def _check_arguments(model, state, command) -> None:
             raise ValueError(f"state.{name} must be finite")
     if not np.isfinite(state.upper_rotation):
         raise ValueError(f"state.upper_rotation must be finite, got {state.upper_rotation}")
+    if guess is not None:
+        guess.check(model)

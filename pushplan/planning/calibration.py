@@ -40,7 +40,8 @@ def calibrate_reduced(coarse: FeRollouts, spec: PlanSpec, naive: np.ndarray,
                 f"{springback.yaw:.4g} in yaw")
     twist = None
     if spec.yaw_targeted:
-        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False, from_rest=True)
+        twist = coarse.rollout(np.tile([0.0, 0.0, spec.max_dtheta], (spec.steps, 1)), release=False, from_rest=True,
+                               warm=False)  # a rotation: no start for the pushes
     params = calibrate(coarse.model, calib.reports, twist.reports if twist else None, log=log)
     if log is not None:
         log(f"calibrated on {coarse.label} mesh {spec.planning_elements}: compliance "

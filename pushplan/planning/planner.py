@@ -84,7 +84,8 @@ class PlanSession:
         press, release = press_commands(scenario), scenario.release  # rollouts show the rest pose when it lets go
         self.coarse = FeRollouts(scenario.model(elements=spec.planning_elements, quadrature=spec.planning_quadrature,
                                               what="plan.planning_elements"), press, "planning", release=release,
-                                 keep_first=True)  # an executed push is the first step of the last rollout
+                                 keep_first=True,  # an executed push is the first step of the last rollout
+                                 warm_steps=True)  # a rollout's steps start from the last rollout's
         self.fine = FeRollouts(scenario.model(), press, "verification", release=release) if verify else None
         self.calibration_time = 0.0
         self.calibrations = self.nlp_builds = 0

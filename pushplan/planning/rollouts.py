@@ -8,11 +8,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_contact import Command, Model, Release, State, StepReport, rollout_derivatives
+from fe_contact import Command, Model, Release, State, StepGuess, StepReport, rollout_derivatives
 
 from ..config.commands import PLANAR_COMPONENTS, planar_commands
 from ..errors import SolverFailure
 from ..run import Run, StepSummary, drive
+
+
+class _EndTangents:
+    """A :func:`drive` observer: the tangent each converged step ended with (its state's
+    cached one, taken before the next step may release it; None for a failed step)."""
+
+    def __init__(self):
+        self.values = []
+
+    def step(self, run: Run, report: StepReport) -> None:
+        self.values.append(run.state.tangent.value if report.converged else None)
 
 
 class PlanningError(SolverFailure):
@@ -88,10 +99,18 @@ class FeRollouts:
 
     ``after``: commands already executed after the press (re-planning from a measured
     state); they are applied once after the press, and rollout poses are then relative
-    to the pose they leave (row 0 is zero)."""
+    to the pose they leave (row 0 is zero).
+
+    ``warm_steps``: every rollout's Newton loops start from the last rollout's converged
+    steps of the same pushes (:class:`fe_contact.StepGuess`, counted from the press: a
+    re-plan's rollout after an executed push starts each step from the step one push
+    later of the rollout before).  The answers are the same to the solver's tolerances
+    (``newton_tol``, ``local_tol``), not bit for bit; ``guessed_steps`` counts the steps
+    that started from a guess.  The guesses hold the tangent each step ended with: one
+    factorised tangent per push alive (a planning mesh's)."""
 
     def __init__(self, model: Model, press: tuple[Command, ...], label: str, release: Release | None = None,
-                 after: tuple[Command, ...] = (), keep_first: bool = False):
+                 after: tuple[Command, ...] = (), keep_first: bool = False, warm_steps: bool = False):
         self.model = model
         self.press = tuple(press)
         self.after = tuple(after)
@@ -104,6 +123,10 @@ class FeRollouts:
         # keep_first: the last rollout's first step, its start and command, for :meth:`advance`
         self.keep_first = keep_first and model.pad is None
         self._first: tuple[Pressed, Command, Run] | None = None
+        # warm_steps: the last rollout's converged steps by push (0: the first after the press)
+        self.warm_steps = warm_steps
+        self._guesses: dict[int, StepGuess] = {}
+        self.guessed_steps = 0
 
     @property
     def relative(self) -> bool:
@@ -111,8 +134,11 @@ class FeRollouts:
         return bool(self.after)
 
     def _drive(self, commands, state: State | None = None, keep_states: bool = False,
-               release: Release | None = None) -> Run:
-        run = drive(self.model, commands, state, keep_states=keep_states, release=release)
+               release: Release | None = None, guesses=(), ended: _EndTangents | None = None) -> Run:
+        """:func:`drive`, its steps started from ``guesses``, the tangents they end with
+        added to ``ended``; PlanningError if a step fails."""
+        run = drive(self.model, commands, state, keep_states=keep_states, release=release, guesses=guesses,
+                    observers=() if ended is None else (ended,))
         if not run.completed:
             f = run.summary.failure
             raise PlanningError(f"FE step {f.step} on the {self.label} mesh failed ({f.status}): {f.message}")
@@ -183,8 +209,8 @@ class FeRollouts:
         """:meth:`rollout` (with the release, if any and ``release``) and the exact Jacobian
         (3, K, 3) of the final lower-face pose ``(x, y, yaw)``, the rest's after a release, with
         respect to the commands ``(dx, dy, dtheta)`` (:func:`fe_contact.rollout_derivatives`,
-        the same converged steps); the final loaded pose's is the rollout's ``loaded_jacobian``.  ``upper`` holds the plate's pose (the upper face's,
-        for the rigid gripper).  Where a derivative does not exist (a contact at a
+        the same converged steps); the final loaded pose's is the rollout's ``loaded_jacobian``.
+        ``upper`` holds the plate's pose (the upper face's, for the rigid gripper).  Where a derivative does not exist (a contact at a
         transition of the contact law) its entries are NaN and the rollout's
         ``nondifferentiable`` says why.  A frictional pad's release is differentiated as it
         is run (midpoint or backward-Euler load steps, ``Release.scheme``): one rollout.
@@ -221,10 +247,14 @@ class FeRollouts:
                        result.d_commands[K - 1, :3][:, :, PLANAR_COMPONENTS])
         return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 
-    def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False) -> Rollout:
+    def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False,
+                warm: bool = True) -> Rollout:
         """Apply (K, 3) commands ``(dx, dy, dtheta)`` from the start state (``from_rest``:
         from the pressed block at rest, absolute poses), then the release if there is one
-        and ``release``.
+        and ``release``.  With :attr:`warm_steps`, ``warm`` rollouts start their steps from
+        the last warm rollout's and keep theirs for the next; ``warm=False`` (a client's
+        own rollout, a calibration's rotation) neither: its numbers do not depend on the
+        rollouts before it, and it leaves the guesses as they were.
 
         Raises
         ------
@@ -233,8 +263,9 @@ class FeRollouts:
         """
         pressed = self.at_rest() if from_rest else self.pressed()
         t0 = time.perf_counter()
+        first = (0 if from_rest else len(self.after)) if warm else None  # its first push, from the press
         run = self._drive_from(pressed, planar_commands(commands), self.release if release else None,
-                               keep=self.keep_first and not from_rest)
+                               keep=self.keep_first and not from_rest, first=first)
         K = len(commands)
         loaded = run.reports[:K]
         lower = np.array([[*r.lower_centroid[:2], r.lower_yaw] for r in (pressed.reports[-1], *loaded)])
@@ -251,22 +282,45 @@ class FeRollouts:
                        rest, tuple(run.reports[K:]), self._pad_slip(run.states[1:K + 1], loaded))
 
     def _drive_from(self, pressed: Pressed, commands: tuple[Command, ...], release: Release | None,
-                    keep: bool) -> Run:
+                    keep: bool, first: int | None = None) -> Run:
         """The run of ``commands`` (then ``release``) from ``pressed`` with every state; with
         ``keep`` its first step is run alone and kept for :meth:`advance` (the state after
         it keeps its factorised tangent, which the next step of one run would release: one
         more tangent alive, a planning mesh's).  A step of a run does not depend on the
         steps after it, so both ways give the same numbers (a release after a single
-        command is not split: it starts from the loaded step's report of its own run)."""
+        command is not split: it starts from the loaded step's report of its own run).
+        ``first``: the push ``commands[0]`` is, counted from the press, for :attr:`warm_steps`
+        (None: the run neither takes nor leaves guesses)."""
+        guesses = self._guessed(first, len(commands))
+        ended = _EndTangents() if self.warm_steps and first is not None else None
         if not keep or not commands or (len(commands) == 1 and release is not None):
-            return self._drive(commands, pressed.state, keep_states=True, release=release)
-        first = self._drive(commands[:1], pressed.state, keep_states=True)
-        self._first = (pressed, commands[0], first)
-        if len(commands) == 1:
-            return first
-        rest = self._drive(commands[1:], first.state, keep_states=True, release=release)
-        rest.summary.steps = first.summary.steps + rest.summary.steps
-        return Run(self.model, rest.state, rest.summary, first.reports + rest.reports, first.states + rest.states[1:])
+            run = self._drive(commands, pressed.state, True, release, guesses, ended)
+        else:
+            one = self._drive(commands[:1], pressed.state, True, None, guesses[:1], ended)
+            self._first = (pressed, commands[0], one)
+            run = one
+            if len(commands) > 1:
+                rest = self._drive(commands[1:], one.state, True, release, guesses[1:], ended)
+                rest.summary.steps = one.summary.steps + rest.summary.steps
+                run = Run(self.model, rest.state, rest.summary, one.reports + rest.reports,
+                          one.states + rest.states[1:])
+        if ended is not None:
+            self._remember(first, commands, run.states, ended.values)
+        return run
+
+    def _guessed(self, first: int | None, K: int) -> tuple:
+        """The kept steps' guesses for pushes ``first .. first + K - 1`` (None where there is none)."""
+        if not self.warm_steps or first is None:
+            return ()
+        guesses = tuple(self._guesses.get(first + k) for k in range(K))
+        self.guessed_steps += sum(g is not None for g in guesses)
+        return guesses
+
+    def _remember(self, first: int, commands: tuple[Command, ...], states, tangents) -> None:
+        """Keep the converged steps of a rollout (``states``, K + 1 of them, and the
+        ``tangents`` the steps ended with) as the guesses of pushes ``first ...``."""
+        for k, command in enumerate(commands):
+            self._guesses[first + k] = StepGuess.of(self.model, states[k], command, states[k + 1], tangents[k])
 
     def _pad_slip(self, states, reports) -> float:
         """:attr:`Rollout.pad_slip` of loaded steps' end ``states`` and ``reports``, m."""

@@ -84,7 +84,7 @@ def _call(observers, name: str, run: Run) -> None:
 
 
 def drive(model: Model, commands, state: State | None = None, *, scenario: dict | None = None,
-          observers=(), keep_states: bool = False, release: Release | None = None) -> Run:
+          observers=(), keep_states: bool = False, release: Release | None = None, guesses=()) -> Run:
     """Apply ``commands`` in order from ``state`` (default: the undeformed block).
 
     Parameters
@@ -101,6 +101,9 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
         Keep every state in ``run.states``.
     release : fe_contact.Release, optional
         Let go of the block after the commands (see the module docstring).
+    guesses : sequence of fe_contact.StepGuess or None, optional
+        Where each command's Newton loop starts (:class:`fe_contact.StepSequence`):
+        the same answers to the solver's tolerances, in fewer iterations from a close guess.
 
     Raises
     ------
@@ -112,7 +115,8 @@ def drive(model: Model, commands, state: State | None = None, *, scenario: dict 
     for i, c in enumerate(commands):
         if not isinstance(c, Command):
             raise TypeError(f"commands[{i}] must be a fe_contact.Command, got {type(c).__name__}")
-    sequence = StepSequence(model, commands, state, release=release, local_problem_hook=_hook(observers))
+    sequence = StepSequence(model, commands, state, release=release, local_problem_hook=_hook(observers),
+                            guesses=guesses)
     run = Run(model=model, state=sequence.state, summary=RunSummary(scenario=scenario or {}),
               states=[sequence.state] if keep_states else [])
     t0 = time.perf_counter()

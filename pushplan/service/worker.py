@@ -150,7 +150,7 @@ class SessionState:
         if release and fe.release is None:
             raise InputError("release: true, but the scenario has no [release] to run after the commands")
         if not payload.get("jacobian"):
-            roll = fe.rollout(commands, release=release)
+            roll = fe.rollout(commands, release=release, warm=False)  # not the planner's
             return _rollout_doc(roll, release)
         if release and not fe.exact:
             raise InputError(f"release: true with jacobian: the scenario's release retreats (release.away = "
