@@ -52,6 +52,7 @@ def test_plan_from_observations_reaches_the_target_from_the_measured_state(tmp_p
     model = write(tmp_path, "model.toml", 0.3, 0.15)
     assert main(["plan", str(model), "--out", str(tmp_path / "p0"), "--quiet", "--no-recording"]) == 0
     first = json.loads((tmp_path / "p0" / "plan.json").read_text())
+    assert first["pose_units"] == ["m", "m", "deg"]  # the file's yaw is in degrees, the service's in radians
     # execute the press and two planned pushes, observe
     executed = {"commands": first["commands"][:3]}
     (tmp_path / "executed.json").write_text(json.dumps(executed))

@@ -115,10 +115,7 @@ class Episode:
                 "iterations": [it.to_dict() for it in self.iterations], "wall_time_s": self.wall_time}
 
 
-POSE_UNITS = ("m", "m", "deg")
-"""The units of a pose row :func:`pose_json` writes: ``closed_loop.json``'s ``pose_units``."""
-
-
 def pose_json(pose) -> list[float]:
-    """``(x, y, yaw)`` (m, rad) as written in files: ``[x, y, yaw_deg]`` (:data:`POSE_UNITS`)."""
+    """``(x, y, yaw)`` (m, rad) as written in files: ``[x, y, yaw_deg]``
+    (:data:`pushplan.planning.document.POSE_UNITS`)."""
     return [float(pose[0]), float(pose[1]), math.degrees(float(pose[2]))]

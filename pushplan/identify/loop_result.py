@@ -15,7 +15,8 @@ from ..config.commands import command_to_dict
 from ..config.plan import PlanSpec
 from ..config.scenario import Scenario
 from ..planning.target import pose_error, within_tolerance
-from .episodes import POSE_UNITS, Episode, pose_json
+from ..planning.document import POSE_UNITS
+from .episodes import Episode, pose_json
 from .fit import Identification
 
 
