@@ -36,6 +36,15 @@ def _encode(obj) -> bytes:
     return json.dumps(obj).encode()
 
 
+def _plain(value, depth: int):
+    """Numbers (numpy's too) as JSON floats, nested ``depth`` lists deep (1: a pose, 2: rows);
+    a value that is not numbers goes as it is, for the server to refuse naming its field."""
+    try:
+        return [float(v) for v in value] if depth == 1 else [[float(v) for v in row] for row in value]
+    except (TypeError, ValueError):
+        return value if isinstance(value, (str, int, float, list, dict)) or value is None else repr(value)
+
+
 class Client:
     """A channel to the server at ``address`` (``HOST:PORT``); ``token`` for a server that
     asks for one; ``timeout`` (s) the deadline of each call."""
@@ -89,7 +98,7 @@ class Session:
     def plan(self, target=None, tolerance: float | None = None, baseline: bool = False) -> dict:
         """Plan the scenario's ``[plan]`` (or ``target`` (x, y, yaw), m and rad) from the
         session's current state: ``commands`` (K, 3), verified ``poses`` (K + 1, 3), ``status``."""
-        return self._call("Plan", target=None if target is None else list(target), tolerance=tolerance,
+        return self._call("Plan", target=None if target is None else _plain(target, 1), tolerance=tolerance,
                           baseline=baseline)
 
     def replan(self, executed, observed, force=None, time: float | None = None, target=None,
@@ -99,16 +108,18 @@ class Session:
         re-plan the remaining steps warm.  Poses of the answer are relative to ``observed``.
         ``closed_loop``: re-plan as ``pushplan closed-loop`` does (the target shifted by the
         model's error since the last plan, a quarter of the tolerances, the planning mesh)."""
-        return self._call("Replan", executed=[list(map(float, c)) for c in executed],
-                          observed=list(map(float, observed)), force=force, time=time,
-                          target=None if target is None else list(target), tolerance=tolerance,
+        return self._call("Replan", executed=_plain(executed, 2), observed=_plain(observed, 1),
+                          force=None if force is None else _plain(force, 1),
+                          time=time, target=None if target is None else _plain(target, 1), tolerance=tolerance,
                           closed_loop=closed_loop or None)
 
     def rollout(self, commands, jacobian: bool = False, mesh: str = "planning", release: bool = False) -> dict:
-        """Roll ``commands`` out from the session's current state: ``poses`` (K + 1, 3) and,
-        with ``jacobian``, the exact (3, K, 3) derivative of the final pose by the commands;
-        with ``release``, the ``rest`` pose after the scenario's release."""
-        return self._call("Rollout", commands=[list(map(float, c)) for c in commands], jacobian=jacobian,
+        """Roll ``commands`` out from the session's current state: the loaded ``poses``
+        (K + 1, 3); with ``release`` (the scenario must have a ``[release]``), ``rest``
+        ``{"pose", "status"}`` after it (else None); with ``jacobian``, ``jacobian`` (3, K, 3)
+        ``d poses[-1] / d commands`` (``None`` where no derivative exists, ``nondifferentiable``
+        says why) and, with ``release``, ``rest["jacobian"]``, the rest pose's."""
+        return self._call("Rollout", commands=_plain(commands, 2), jacobian=jacobian,
                           mesh=mesh, release=release)
 
     def state(self) -> dict:

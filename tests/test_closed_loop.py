@@ -52,6 +52,7 @@ def test_plan_from_observations_reaches_the_target_from_the_measured_state(tmp_p
     model = write(tmp_path, "model.toml", 0.3, 0.15)
     assert main(["plan", str(model), "--out", str(tmp_path / "p0"), "--quiet", "--no-recording"]) == 0
     first = json.loads((tmp_path / "p0" / "plan.json").read_text())
+    assert first["pose_units"] == ["m", "m", "deg"]  # the file's yaw is in degrees, the service's in radians
     # execute the press and two planned pushes, observe
     executed = {"commands": first["commands"][:3]}
     (tmp_path / "executed.json").write_text(json.dumps(executed))
@@ -86,6 +87,7 @@ def test_closed_loop_ends_within_tolerance_the_open_loop_misses(tmp_path, identi
                  *(["--identify"] if identify else []), *([] if identify else ["--no-recording"])])
     assert code == 0
     doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+    assert doc["pose_units"] == ["m", "m", "deg"]  # the file's yaw is in degrees, the service's in radians
     closed, open_ = doc["closed_loop"]["final_error"], doc["open_loop"]["final_error"]
     assert closed["within_tolerance"] and closed["position"] <= TOLERANCE
     assert open_["position"] >= 10 * closed["position"]

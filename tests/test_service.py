@@ -1,9 +1,14 @@
 """``pushplan serve`` (issue 41): one server on 127.0.0.1 (ephemeral port) for the module,
 sessions on the 4 x 4 x 2 model of tests/test_closed_loop.py (planning mesh only).  The
 answers through the wire equal an in-process :class:`PlanSession`'s; every fault of the
-issue's item 4 is a test, and after each a new session on the same server works."""
+issue's item 4 is a test, and after each a new session on the same server works.  The wire
+(docs/service.md): every request field is checked before a session is touched (a one-line
+``INVALID_ARGUMENT`` naming the field and its value), every answer is strict JSON, and a
+``Rollout`` says which pose each output is (the loaded poses, the rest pose of a release
+with its status, each Jacobian next to its pose, a missing derivative ``null`` with the reason)."""
 
 import dataclasses
+import json
 import os
 import signal
 import subprocess
@@ -24,6 +29,7 @@ from pushplan.config.commands import planar_commands  # noqa: E402
 from pushplan.config.plan import parse_plan  # noqa: E402
 from pushplan.planning.planner import PlanSession  # noqa: E402
 from pushplan.planning.replan import Start, remaining_spec  # noqa: E402
+from pushplan.service.schema import FIELDS  # noqa: E402
 from pushplan.service.server import Limits, Server  # noqa: E402
 
 from test_closed_loop import MODEL, PLAN  # noqa: E402
@@ -323,3 +329,167 @@ def test_serve_refuses_an_address_off_loopback_without_flag_and_token(tmp_path, 
     assert main(["serve", "--address", "0.0.0.0:0", "--allow-remote", "--token-file", str(tmp_path / "short")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "at least 16 characters" in err
+
+
+# -- the wire: every field checked, strict JSON, which pose a rollout output is ----------
+
+RELEASED = SCENARIO + '\n[release]\nmode = "lift"\n'
+"""The steel 4 x 4 x 2 block of tests/test_service.py, let go straight up after the pushes."""
+PAD = """
+name = "pad"
+[block]
+size = [0.036, 0.024, 0.016]
+elements = [3, 2, 2]
+quadrature = 2
+[material]
+young = 3.0e6
+poisson = 0.42
+density = 1150.0
+[friction]
+mu_x = 0.5
+mu_y = 0.3
+angle_deg = 35.0
+[gripper]
+friction = 1.1
+[[load]]
+dz = -0.3e-3
+[release]
+mode = "lift"
+[plan]
+x = 1.2e-3
+y = 0.7e-3
+steps = 3
+max_step = 0.6e-3
+tolerance = 2.0e-5
+planning_elements = [3, 2, 2]
+planning_quadrature = 2
+target_state = "rest"
+"""
+"""A rubber block under a frictional pad (the trial's): its third push ends a contact at a
+transition of the contact law, so some derivatives do not exist."""
+
+
+def _strict(raw: bytes) -> dict:
+    def refuse(token):
+        raise ValueError(f"non-JSON token {token}")
+
+    return json.loads(raw, parse_constant=refuse)
+
+
+def _raw(client, method: str, request: dict) -> bytes:
+    call = client.channel.unary_unary(f"/pushplan.Planner/{method}")
+    return call(json.dumps(request).encode(), timeout=120)
+
+
+def _refused(call) -> str:
+    with pytest.raises(ServiceError) as e:
+        call()
+    assert e.value.code == "INVALID_ARGUMENT" and "\n" not in e.value.message
+    return e.value.message
+
+
+@pytest.fixture(scope="module")
+def steel(client):
+    s = client.open(SCENARIO, verify=False)
+    yield s
+    s.close()
+
+
+@pytest.mark.parametrize("method", sorted(FIELDS))
+def test_every_field_of_the_wrong_type_is_refused_naming_it_and_its_value(client, steel, method):
+    before = steel.rollout(PUSHES)["poses"]
+    for field in FIELDS[method]:
+        request = {"session": steel.id} if "session" in FIELDS[method] else {}
+        msg = _refused(lambda f=field: client.call(method, request | {f: {"x": 1}}))
+        assert msg.startswith(f"{field}: expected") and '{"x": 1}' in msg
+    msg = _refused(lambda: client.call(method, {"verfy": False} | ({"session": steel.id} if method != "Open" else {})))
+    assert msg.startswith('"verfy": not a field of ' + method)
+    assert steel.rollout(PUSHES)["poses"] == before and steel.state()["executed"] == 0
+
+
+def test_the_trials_bad_fields_are_refused_naming_field_and_value(client, steel):
+    msg = _refused(lambda: client.call("Open", {"scenario_toml": SCENARIO, "verify": "no"}))
+    assert msg == 'verify: expected true or false, got "no"'
+    msg = _refused(lambda: client.call("Rollout", {"session": 5, "commands": PUSHES}))
+    assert msg.startswith("session: expected a session id string") and msg.endswith("got 5")
+    msg = _refused(lambda: steel.plan(target=[float("nan"), 0.0, 0.0]))
+    assert msg.startswith("target: expected [x, y, yaw]") and "[NaN, 0.0, 0.0]" in msg
+    msg = _refused(lambda: steel.replan([], "here"))  # the client sends what is not numbers as it is
+    assert msg.startswith("observed:") and msg.endswith('got "here"')
+    msg = _refused(lambda: steel.rollout("abc"))
+    assert msg.startswith("commands:") and msg.endswith('got "abc"')
+    msg = _refused(lambda: steel.rollout([[1e-4, 0.0]]))
+    assert msg.startswith("commands:") and "[[0.0001, 0.0]]" in msg
+    msg = _refused(lambda: client.call("Replan", {"session": steel.id}))
+    assert msg.startswith("observed: required by Replan")
+    assert steel.state()["executed"] == 0
+
+
+def test_release_without_a_release_in_the_scenario_is_refused_naming_it(steel):
+    msg = _refused(lambda: steel.rollout(PUSHES, release=True))
+    assert msg.startswith("release: true, but the scenario has no [release]")
+    msg = _refused(lambda: steel.rollout(PUSHES, jacobian=True, release=True))
+    assert msg.startswith("release:")
+    assert steel.rollout(PUSHES)["rest"] is None
+
+
+def test_a_release_with_a_retreat_is_refused_its_rest_jacobian_naming_what(client):
+    """The stale "no exact derivatives with a release or a frictional pad" now says what is
+    refused: the rest pose's derivatives of a release that retreats; the loaded ones work."""
+    s = client.open(RELEASED.replace('mode = "lift"', 'mode = "lift"\naway = [2.0e-5, 0.0]'), verify=False)
+    try:
+        msg = _refused(lambda: s.rollout(PUSHES, jacobian=True, release=True))
+        assert msg.startswith("release: true with jacobian: the scenario's release retreats (release.away = [2e-05, 0.0]")
+        assert np.array(s.rollout(PUSHES, jacobian=True)["jacobian"]).shape == (3, 2, 3)
+    finally:
+        s.close()
+
+
+def test_a_rollout_says_which_pose_each_output_and_jacobian_is(client):
+    """The loaded poses with the final one's Jacobian, the rest pose with its own, each
+    against central differences of what it sits next to; release false: no rest."""
+    s = client.open(RELEASED, verify=False)
+    try:
+        commands = np.array([[1e-4, 0.5e-4, 0.0]] * 3)
+        both = s.rollout(commands, jacobian=True, release=True)
+        loaded = s.rollout(commands, jacobian=True)
+        assert loaded["rest"] is None and both["rest"]["status"] == "settled"
+        assert np.array(both["jacobian"]).shape == np.array(both["rest"]["jacobian"]).shape == (3, 3, 3)
+        np.testing.assert_array_equal(both["poses"], loaded["poses"])
+        np.testing.assert_array_equal(both["jacobian"], loaded["jacobian"])  # of poses[K], release or not
+        plain = s.rollout(commands, release=True)
+        np.testing.assert_allclose(plain["rest"]["pose"], both["rest"]["pose"], rtol=0, atol=1e-12)
+        h = 1e-8
+        up, down = commands.copy(), commands.copy()
+        up[1, 0] += h
+        down[1, 0] -= h
+        a, b = s.rollout(up, release=True), s.rollout(down, release=True)
+        fd_loaded = (np.array(a["poses"][-1]) - np.array(b["poses"][-1])) / (2 * h)
+        fd_rest = (np.array(a["rest"]["pose"]) - np.array(b["rest"]["pose"])) / (2 * h)
+        np.testing.assert_allclose(np.array(both["jacobian"])[:2, 1, 0], fd_loaded[:2], rtol=1e-3, atol=1e-6)
+        np.testing.assert_allclose(np.array(both["rest"]["jacobian"])[:2, 1, 0], fd_rest[:2], rtol=1e-3, atol=1e-6)
+        # the rest pose is not the loaded one: the Jacobians differ where the poses' dependence does
+        assert not np.allclose(both["rest"]["pose"], both["poses"][-1], rtol=0, atol=1e-9)
+    finally:
+        s.close()
+
+
+def test_a_jacobian_with_missing_derivatives_is_strict_json_with_nulls_and_the_reason(client):
+    opened = _strict(_raw(client, "Open", {"scenario_toml": PAD, "verify": False}))
+    sid = opened["session"]
+    try:
+        commands = [[4e-4, 2.3e-4, 0.0]] * 3
+        docs = {}
+        for release in (False, True):
+            raw = _raw(client, "Rollout", {"session": sid, "commands": commands, "jacobian": True, "release": release})
+            docs[release] = _strict(raw)  # the trial's strict parser failed on the token NaN
+            assert json.dumps(docs[release], allow_nan=False)
+        # the put-down ends a contact at a transition: the rest pose's derivatives along some inputs do not exist
+        rest = docs[True]["rest"]
+        nulls = [v is None for v in np.array(rest["jacobian"], dtype=object).ravel()]
+        assert any(nulls) and not all(nulls) and docs[True]["nondifferentiable"]
+        assert rest["status"] == "settled" and len(rest["pose"]) == 3
+        # the loaded poses' are the same with or without the release after them
+        assert docs[True]["jacobian"] == docs[False]["jacobian"] and docs[False]["rest"] is None
+    finally:
+        Client.call(client, "Close", {"session": sid})

@@ -16,7 +16,8 @@ pushes executed (``Replan(closed_loop=True)``: the re-plan ``closed-loop`` makes
 executes the first command of the answer.
 
 Prints one line per push and the final pose; ``--out FILE`` writes them as JSON
-(``final_pose``: x, y (m), yaw (rad) of the lower face from rest, block frame).
+(``final_pose``: x, y (m), yaw (rad) of the lower face from rest, block frame; ``pose_units``
+says so: ``closed_loop.json``'s poses are ``[x, y, yaw]`` in m, m, deg, its ``pose_units``).
 ``--compare closed_loop.json`` (from ``pushplan closed-loop model.toml --truth truth.toml``)
 checks that the loop ended where closed-loop ends, to ``--within`` m (exit 1 if not).
 ``--realtime`` holds every period to the wall clock and counts the periods that overran.
@@ -152,7 +153,8 @@ def control_loop(address: str, model: Path, truth: Path, periods: int, realtime:
                                         time=float(robot.d.time), closed_loop=True)
                 calls.append(time.perf_counter() - t0)
         session.close()
-    return {"periods": robot.periods, "control_period_s": robot.period, "pushes": pushes,
+    return {"pose_units": ["m", "m", "rad"], "periods": robot.periods, "control_period_s": robot.period,
+            "pushes": pushes,
             "final_pose": pushes[-1]["observed"], "call_wall_s": calls,
             "overruns": pace.state["overruns"] if pace else None}
 

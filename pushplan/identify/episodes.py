@@ -116,5 +116,6 @@ class Episode:
 
 
 def pose_json(pose) -> list[float]:
-    """``(x, y, yaw)`` (m, rad) as written in files: ``[x, y, yaw_deg]``."""
+    """``(x, y, yaw)`` (m, rad) as written in files: ``[x, y, yaw_deg]``
+    (:data:`pushplan.planning.document.POSE_UNITS`)."""
     return [float(pose[0]), float(pose[1]), math.degrees(float(pose[2]))]

@@ -15,6 +15,7 @@ from ..config.commands import command_to_dict
 from ..config.plan import PlanSpec
 from ..config.scenario import Scenario
 from ..planning.target import pose_error, within_tolerance
+from ..planning.document import POSE_UNITS
 from .episodes import Episode, pose_json
 from .fit import Identification
 
@@ -136,10 +137,11 @@ class ClosedLoopResult:
         return pose_error(self.open_final, self.spec)[0]
 
     def to_dict(self) -> dict:
-        """The ``closed_loop.json`` content."""
+        """The ``closed_loop.json`` content; every pose row ``[x, y, yaw]`` in ``pose_units``
+        (m, m, deg: the service's and the API's poses are in m, m, rad)."""
         spec, rest = self.spec, self.spec.target_state == "rest"
         return {
-            "scenario": self.scenario.name, "truth": {"name": self.truth.name, **friction_of(self.truth)},
+            "pose_units": list(POSE_UNITS), "scenario": self.scenario.name, "truth": {"name": self.truth.name, **friction_of(self.truth)},
             "model": friction_of(self.scenario), "plan": spec.to_dict(), "identify": self.identify,
             "robust": self.robust,
             "scored_on": "rest pose after the truth's release" if rest else "loaded pose",

@@ -18,8 +18,13 @@ from .result import PlanResult
 from .target import pose_error
 
 
+POSE_UNITS = ("m", "m", "deg")
+"""The units of a pose row ``[x, y, yaw]`` in the files (``plan.json``, ``closed_loop.json``:
+their ``pose_units``); the API and the service take radians."""
+
+
 def _poses_json(poses: np.ndarray) -> list[list[float]]:
-    """(n, 3) poses as ``[x, y, yaw_deg]`` rows."""
+    """(n, 3) poses as ``[x, y, yaw_deg]`` rows (:data:`POSE_UNITS`)."""
     p = np.asarray(poses, float)
     return [[float(r[0]), float(r[1]), math.degrees(float(r[2]))] for r in p]
 
@@ -52,6 +57,7 @@ def plan_document(result: PlanResult) -> dict:
     """
     spec, sol, state = result.spec, result.solution, result.spec.target_state
     return {
+        "pose_units": list(POSE_UNITS),
         "scenario": result.scenario.to_dict(),
         "scenario_fingerprint": scenario_fingerprint(result.scenario.to_dict()),
         "plan": spec.to_dict(),

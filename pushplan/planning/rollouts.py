@@ -65,6 +65,9 @@ class Rollout:
     nondifferentiable : str
         For a rollout with derivatives: why some of them do not exist (a contact
         at a transition of the contact law, :mod:`fe_contact.stepping.transitions`), or "".
+    loaded_jacobian : ndarray, shape (3, K, 3), or None
+        For a rollout with derivatives: ``d lower[-1] / d commands``, the final loaded
+        pose's (m/m, m/rad, rad/m, rad/rad), NaN where it does not exist.
     """
 
     commands: np.ndarray
@@ -77,6 +80,7 @@ class Rollout:
     release_reports: tuple[StepReport, ...] = ()
     pad_slip: float = 0.0
     nondifferentiable: str = ""
+    loaded_jacobian: np.ndarray | None = None
 
     def final(self, target_state: str = "loaded") -> np.ndarray:
         """The final lower-face pose (3,) loaded (after the last command) or at rest."""
@@ -201,12 +205,12 @@ class FeRollouts:
         commands, or one straight up (a release with a retreat is not differentiated)."""
         return self.release is None or not any(self.release.away)
 
-    def rollout_with_jacobian(self, commands: np.ndarray) -> tuple[Rollout, np.ndarray]:
-        """:meth:`rollout` (with the release, if any) and the exact Jacobian (3, K, 3)
-        of the final lower-face pose ``(x, y, yaw)``, the rest's after a release, with
+    def rollout_with_jacobian(self, commands: np.ndarray, release: bool = True) -> tuple[Rollout, np.ndarray]:
+        """:meth:`rollout` (with the release, if any and ``release``) and the exact Jacobian
+        (3, K, 3) of the final lower-face pose ``(x, y, yaw)``, the rest's after a release, with
         respect to the commands ``(dx, dy, dtheta)`` (:func:`fe_contact.rollout_derivatives`,
-        the same converged steps).  ``upper`` holds the plate's pose (the upper face's,
-        for the rigid gripper).  Where a derivative does not exist (a contact at a
+        the same converged steps); the final loaded pose's is the rollout's ``loaded_jacobian``.
+        ``upper`` holds the plate's pose (the upper face's, for the rigid gripper).  Where a derivative does not exist (a contact at a
         transition of the contact law) its entries are NaN and the rollout's
         ``nondifferentiable`` says why.  A frictional pad's release is differentiated as it
         is run (midpoint or backward-Euler load steps, ``Release.scheme``): one rollout.
@@ -218,8 +222,9 @@ class FeRollouts:
         """
         pressed = self.pressed()
         t0 = time.perf_counter()
+        release = self.release if release else None
         result = rollout_derivatives(self.model, planar_commands(commands), state=pressed.state, parameters=(),
-                                     release=self.release)
+                                     release=release)
         if not result.converged:
             raise PlanningError(f"FE rollout on the {self.label} mesh failed ({result.status.value}): {result.message}")
         if result.rest is not None and not result.rest.settled:
@@ -228,7 +233,7 @@ class FeRollouts:
         K, start = len(commands), pressed.reports[-1]
         lower = np.vstack([[*start.lower_centroid[:2], start.lower_yaw], result.outputs[:K, :3]])
         upper = np.vstack([pressed.state.plate, [r.plate for r in result.reports[:K]]])
-        rest = None if self.release is None else result.outputs[-1, :3].copy()
+        rest = None if release is None else result.outputs[-1, :3].copy()
         if self.relative:
             origin = lower[0].copy()
             lower, upper = lower - origin, upper - upper[0]
@@ -238,7 +243,8 @@ class FeRollouts:
         commanded = pressed.state.upper_translation[:2] + np.cumsum(np.asarray(commands, float)[:, :2], axis=0)
         roll = Rollout(np.array(commands, float), lower, upper, reports,
                        tuple(StepSummary.from_report(r) for r in reports), time.perf_counter() - t0, rest,
-                       tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable())
+                       tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable(),
+                       result.d_commands[K - 1, :3][:, :, PLANAR_COMPONENTS])
         return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 
     def rollout(self, commands: np.ndarray, release: bool = True, from_rest: bool = False,

@@ -27,6 +27,7 @@ from pathlib import Path
 import grpc
 
 from ..errors import InputError
+from .schema import check, strict_json
 from .worker import ready, worker_main
 
 SERVICE = "pushplan.Planner"
@@ -137,8 +138,12 @@ class Planner:
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, f"request: not a UTF-8 JSON object ({e})") from None
                 if not isinstance(request, dict):
                     raise _Abort(grpc.StatusCode.INVALID_ARGUMENT, "request: not a JSON object")
+                check(method, request)  # before any session is touched
                 answer = fn(request, context)
-                return json.dumps(answer | {"server_s": time.perf_counter() - t0}).encode()
+                try:
+                    return strict_json(answer | {"server_s": time.perf_counter() - t0})
+                except ValueError as e:  # a non-finite number the session did not encode: a bug
+                    raise _Abort(grpc.StatusCode.INTERNAL, f"{method}: the answer is not strict JSON ({e})") from None
             except _Abort as e:
                 context.abort(e.code, str(e))
             except InputError as e:
@@ -159,12 +164,8 @@ class Planner:
         text, path = request.get("scenario_toml"), request.get("scenario_path")
         if (text is None) == (path is None):
             raise InputError("Open: give exactly one of scenario_toml (text) and scenario_path")
-        if text is not None:
-            if not isinstance(text, str):
-                raise InputError("scenario_toml: expected a string")
+        if text is not None:  # both strings: checked by schema.check
             return text, str(request.get("name") or "scenario")
-        if not isinstance(path, str):
-            raise InputError("scenario_path: expected a string")
         resolved = Path(path).resolve()
         if not any(resolved.is_relative_to(r) for r in self.roots):
             raise _Abort(grpc.StatusCode.PERMISSION_DENIED,
@@ -183,7 +184,7 @@ class Planner:
             sid = f"s{next(self._ids)}"
         try:
             parent, child = self._context.Pipe()
-            proc = self._context.Process(target=worker_main, args=(child, text, name, bool(request.get("verify", True))),
+            proc = self._context.Process(target=worker_main, args=(child, text, name, request.get("verify") is not False),
                                          daemon=True, name=f"pushplan-session-{sid}")
             proc.start()
             child.close()

@@ -13,7 +13,6 @@ centroid relative to its rest pose (the block frame of ``pushplan plan``).
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import time
 import tomllib
@@ -22,21 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError, SolverFailure
-
-
-def _rows(value, key: str, width: int = 3, max_rows: int = 10_000) -> np.ndarray:
-    """``value`` as a finite (n, width) float array; InputError naming ``key`` otherwise."""
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{key}: expected rows of {width} numbers, got {str(value)[:80]}") from None
-    if a.ndim != 2 or a.shape[1] != width or len(a) > max_rows or not np.all(np.isfinite(a)):
-        raise InputError(f"{key}: expected at most {max_rows} finite rows of {width} numbers, got shape {a.shape}")
-    return a
-
-
-def _pose(value, key: str) -> np.ndarray:
-    return _rows([value], key)[0]
+from .schema import nullable, pose, rows
 
 
 @dataclass(frozen=True)
@@ -95,12 +80,9 @@ class SessionState:
         """The session's spec with the request's ``target`` (m, m, rad) and ``tolerance`` (m)."""
         spec = self.spec
         if payload.get("target") is not None:
-            spec = dataclasses.replace(spec, target=tuple(float(v) for v in _pose(payload["target"], "target")))
-        if payload.get("tolerance") is not None:
-            tol = payload["tolerance"]
-            if not isinstance(tol, (int, float)) or not (math.isfinite(tol) and tol > 0):
-                raise InputError(f"tolerance: expected a positive number of metres, got {tol!r}")
-            spec = dataclasses.replace(spec, tolerance=float(tol))
+            spec = dataclasses.replace(spec, target=tuple(float(v) for v in pose(payload["target"], "target")))
+        if payload.get("tolerance") is not None:  # a positive finite number: schema.check
+            spec = dataclasses.replace(spec, tolerance=float(payload["tolerance"]))
         return spec
 
     def plan(self, payload: dict) -> dict:
@@ -122,8 +104,8 @@ class SessionState:
         from ..identify.closed_loop import modifier, shifted_spec
         from ..planning.replan import Start, remaining_spec
 
-        executed = planar_commands(_rows(payload.get("executed", []) or np.zeros((0, 3)), "executed"))
-        observed = _pose(payload.get("observed"), "observed")
+        executed = planar_commands(rows(payload.get("executed"), "executed"))
+        observed = pose(payload.get("observed"), "observed")
         spec = self._spec(payload)
         if len(executed) >= spec.steps:
             raise InputError(f"executed: {len(executed)} pushes executed, plan.steps = {spec.steps}: nothing to re-plan")
@@ -153,23 +135,42 @@ class SessionState:
         return observed - (self.aim.origin + self.aim.poses[k])
 
     def rollout(self, payload: dict) -> dict:
-        """Roll commands out from the session's current state on one mesh; with
-        ``jacobian``, the exact (3, K, 3) derivative of the final pose."""
-        commands = _rows(payload.get("commands"), "commands", max_rows=self.spec.steps * 10)
+        """Roll commands out from the session's current state on one mesh: the loaded
+        ``poses`` (K + 1, 3); with ``release``, the scenario's release after them and the
+        ``rest`` pose; with ``jacobian``, the exact derivative (3, K, 3) of the final loaded
+        pose, and of the rest pose in ``rest``, by the commands (docs/service.md)."""
+        commands = rows(payload.get("commands"), "commands", max_rows=self.spec.steps * 10)
         if len(commands) == 0:
-            raise InputError("commands: at least one row (dx, dy, dtheta) is needed")
-        mesh = payload.get("mesh", "planning")
-        fe = {"planning": self.session.coarse, "verification": self.session.fine}.get(mesh)
+            raise InputError("commands: at least one row (dx, dy, dtheta) is needed, got []")
+        mesh = payload.get("mesh") or "planning"
+        fe = {"planning": self.session.coarse, "verification": self.session.fine}[mesh]
         if fe is None:
-            raise InputError(f"mesh: expected \"planning\" or \"verification\" (this session's), got {mesh!r}")
-        if payload.get("jacobian"):
-            if not fe.exact:
-                raise InputError("jacobian: no exact derivatives with a release or a frictional pad in the scenario")
-            roll, jac = fe.rollout_with_jacobian(commands)
-            return {"poses": roll.lower.tolist(), "jacobian": jac.tolist(), "wall_time_s": roll.wall_time}
-        roll = fe.rollout(commands, release=bool(payload.get("release", False)), warm=False)  # not the planner's
-        return {"poses": roll.lower.tolist(), "rest": None if roll.rest is None else roll.rest.tolist(),
-                "wall_time_s": roll.wall_time}
+            raise InputError(f"mesh: {mesh!r}, but this session was opened with verify false (no verification mesh)")
+        release = bool(payload.get("release"))
+        if release and fe.release is None:
+            raise InputError("release: true, but the scenario has no [release] to run after the commands")
+        if not payload.get("jacobian"):
+            roll = fe.rollout(commands, release=release, warm=False)  # not the planner's
+            return _rollout_doc(roll, release)
+        if release and not fe.exact:
+            raise InputError(f"release: true with jacobian: the scenario's release retreats (release.away = "
+                             f"{list(fe.release.away)} m), whose rest pose has no exact derivatives; ask the "
+                             "Jacobian with release false (the loaded poses') or the rest pose without jacobian")
+        roll, final = fe.rollout_with_jacobian(commands, release=release)
+        return _rollout_doc(roll, release, final)
+
+
+def _rollout_doc(roll, release: bool, final=None) -> dict:
+    """The reply to a rollout: which pose each output is, each Jacobian next to its pose,
+    NaN (a derivative that does not exist) as null with the reason (docs/service.md)."""
+    doc = {"poses": roll.lower.tolist(), "rest": None, "wall_time_s": roll.wall_time}
+    if release:  # an unsettled block is a PlanningError (ABORTED): a rest pose given is settled
+        doc["rest"] = {"pose": roll.rest.tolist(), "status": "settled"}
+    if final is not None:
+        doc |= {"jacobian": nullable(roll.loaded_jacobian), "nondifferentiable": roll.nondifferentiable}
+        if release:
+            doc["rest"]["jacobian"] = nullable(final)
+    return doc
 
 
 def _reply(conn, fn, *args) -> None:
