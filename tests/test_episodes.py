@@ -13,7 +13,7 @@ from fe_contact import Command, Friction, Material, Model, SolverOptions, State,
 from pushplan.config import parse_scenario
 from pushplan.config.plan import parse_plan
 from pushplan.errors import InputError
-from pushplan.identify.episodes import episode_spec, plate_over, regrasp, rest_shift
+from pushplan.identify.episodes import episode_spec, plate_over, regrasp, response_gain
 
 POSE = np.array([1.3e-3, -0.4e-3, math.radians(2.0)])
 LIFT = 3e-6  # m: the moved block floats this high (a frictional pad touches its top)
@@ -69,16 +69,48 @@ def test_a_frictional_regrasp_touches_the_top_and_presses_from_there():
     assert reports[-1].upper_force[2] == pytest.approx(fresh[-1].upper_force[2], rel=1e-4)
 
 
-def test_an_episode_aims_from_the_observed_rest_less_the_past_discrepancy():
+def test_an_episode_aims_at_what_is_left_over_the_truths_response_gain():
     spec = parse_plan(parse_scenario(tomllib.loads(SCENARIO)))
     assert spec.episodes == 3
     rest = np.array([2.9e-3, 1.05e-3, 0.01])
-    shift = rest_shift([np.array([1e-4, -2e-5, 0.0]), np.array([3e-5, 0.0, 0.0])],
-                       [np.array([0.5e-4, 0.0, 0.0]), np.array([1e-5, 0.0, 0.0])])
-    assert np.allclose(shift, [3.5e-5, -1e-5, 0.0])
-    e = episode_spec(spec, rest, shift)
-    assert e.target == pytest.approx((3e-3 - 2.9e-3 - 3.5e-5, 1e-3 - 1.05e-3 + 1e-5, 0.0))
-    assert np.all(rest_shift([], []) == 0)
+    # the last episode aimed at (1, 0.5) mm and the truth moved 0.4x that (and 0.1 mm across it)
+    gain = response_gain(np.array([0.4e-3, 0.3e-3, 0.0]), np.array([1e-3, 0.5e-3, 0.0]))
+    assert np.allclose(gain, [(0.4 + 0.15) / 1.25, (0.4 + 0.15) / 1.25, 1.0])
+    e = episode_spec(spec, rest, gain)
+    assert e.target == pytest.approx(((3e-3 - 2.9e-3) / gain[0], (1e-3 - 1.05e-3) / gain[1], 0.0))
+    assert np.all(response_gain(None, None) == 1)
+    # bounded: a truth that barely moved (or moved backwards) is asked for at most 10x what is left
+    assert np.allclose(response_gain(np.array([-1e-4, 0.0, 0.0]), np.array([1e-3, 0.0, 0.0]))[:2], 0.1)
+
+
+def test_a_gain_carried_from_episode_to_episode_converges_where_an_offset_overshoots():
+    """The trial's divergence (rest 846 -> 516 -> 122 -> 137 -> 257 -> 323 um): a truth that
+    moves 0.37x what the model predicts; the additive offset of the past episodes' rest
+    discrepancies (the loop before) carries the 0.63 of a large aim into a small one and
+    overshoots; the secant gain aims at what is left over the response and converges."""
+    spec, k = parse_plan(parse_scenario(tomllib.loads(SCENARIO))), 0.37
+    target = np.array(spec.target)
+
+    def loop(next_aim):
+        pos, aim, errors, history = np.zeros(3), target, [], []
+        for _ in range(6):
+            moved = k * aim
+            pos = pos + moved
+            history.append((moved, aim))
+            errors.append(np.hypot(*(pos - target)[:2]))
+            aim = next_aim(pos, history)
+        return errors
+
+    def offset(pos, history):  # the loop before: the mean rest discrepancy of the episodes after the first
+        shifts = [m - a for m, a in history[1:]]
+        return target - pos - (np.mean(shifts, axis=0) if shifts else 0.0)
+
+    def gain(pos, history):
+        return np.array(episode_spec(spec, pos, response_gain(*history[-1])).target)
+
+    before, after = loop(offset), loop(gain)
+    assert any(b > a for a, b in zip(before, before[1:], strict=False))  # the offset loop gets worse again
+    assert after[1] < 1e-12 * np.hypot(*target[:2]) and all(b <= a for a, b in zip(after, after[1:], strict=False))
 
 
 SCENARIO = """
