@@ -228,9 +228,14 @@ def scripted_episodes(monkeypatch, response, first_rest, episodes=6):
     truth = ScriptedTruth(response, first_rest)
 
     def pushes(current, spec_e, truth_, first_e, opts, label=""):
-        truth.aims.append(np.array(spec_e.target))
-        truth.rest = truth.response(np.array(spec_e.target))
-        return current, []
+        from fe_contact import Command
+        from pushplan.identify.loop_result import Iteration
+
+        aim = np.array(spec_e.target)
+        truth.aims.append(aim)
+        truth.rest = truth.response(aim)
+        status = "infeasible" if np.hypot(*aim[:2]) > spec_e.steps * spec_e.max_step else "converged"
+        return current, [Iteration(1, Command(), np.zeros(3), {}, status, "", 0, None, 0.0, np.zeros((2, 3)))]
 
     monkeypatch.setattr(loop, "plan", lambda *a, **k: None)
     monkeypatch.setattr(loop, "_pushes", pushes)
@@ -262,3 +267,19 @@ def test_an_episode_that_ends_farther_stops_the_loop(monkeypatch):
     assert len(eps) == 2 and len(calls) == 1
     assert eps[1].error["position"] > eps[0].error["position"]
     assert "episode 2 ended" in stopped and "farther than the best" in stopped
+
+
+def test_an_episode_beyond_reach_says_nothing_of_the_gain(monkeypatch):
+    """The trial's 0.65 pad: its second episode aimed at 1.9 mm, beyond its 3 steps of 0.6 mm,
+    went as far as they allow, and that saturated response (0.27 where the truth's gain is
+    0.38) made the third aim long; the gain is kept from the last episode in reach."""
+    reach = 4 * 1.2e-3
+
+    def response(aimed):  # 0.3x, as far as the steps go
+        n = np.hypot(*aimed[:2])
+        return 0.3 * aimed * min(1.0, reach / n)
+
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, response, 0.3 * np.array([3e-3, 1e-3, 0.0]))
+    assert np.hypot(*aims[0][:2]) > reach  # 0.7 of the target left over 0.3
+    assert not stopped and eps[-1].error["within_tolerance"] and len(eps) == 3
+    assert np.allclose(aims[1][:2], (np.array(spec.target[:2]) - eps[1].rest[:2]) / 0.3, rtol=1e-9)

@@ -320,17 +320,21 @@ def _episodes(current, spec, truth, iterations, release, press, opts: LoopOption
     """The first episode's release and, while its rest pose is outside the tolerance,
     further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most, each aiming at
     what is left over the truth's response gain of the one before
-    (:func:`~.episodes.response_gain`); an episode that ends farther from the target than
-    the best before it stops the loop (a failure, reported).  Returns the model planned
+    (:func:`~.episodes.response_gain`; of the last one in reach of its steps); an episode
+    that ends farther from the target than the best before it stops the loop (a failure,
+    reported).  Returns the model planned
     with last, the episodes, the last episode's truth and why the loop stopped early ("")."""
     truth.let_go(release)
     episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
                         error_json(truth.rest, spec), 0, time.perf_counter() - t_start)]
-    stopped = ""
+    stopped, gain = "", np.ones(3)
     while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
         t0, index, last = time.perf_counter(), len(episodes) + 1, episodes[-1]
         origin = last.rest
-        spec_e = episode_spec(spec, origin, response_gain(last.rest - last.origin, last.aimed))
+        if not any(it.plan_status == "infeasible" for it in last.iterations):
+            # an episode that aimed beyond reach went as far as the steps allow: says nothing of the gain
+            gain = response_gain(last.rest - last.origin, last.aimed)
+        spec_e = episode_spec(spec, origin, gain)
         opts.say(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
         truth = truth.regrasped(press)
         first_e = plan(current, spec_e, baseline=False)
