@@ -3,6 +3,7 @@ the tolerance, grasps the block again where it lies, presses, pushes the correct
 releases, ``[plan] episodes`` times at most.  Cheap pieces here (a 3 x 2 x 2 block); the
 end-to-end acceptance run takes about 15 s (two closed loops)."""
 
+import dataclasses
 import math
 import tomllib
 
@@ -13,7 +14,7 @@ from fe_contact import Command, Friction, Material, Model, SolverOptions, State,
 from pushplan.config import parse_scenario
 from pushplan.config.plan import parse_plan
 from pushplan.errors import InputError
-from pushplan.identify.episodes import episode_spec, plate_over, regrasp, rest_shift
+from pushplan.identify.episodes import episode_spec, plate_over, regrasp, response_gain
 
 POSE = np.array([1.3e-3, -0.4e-3, math.radians(2.0)])
 LIFT = 3e-6  # m: the moved block floats this high (a frictional pad touches its top)
@@ -69,16 +70,48 @@ def test_a_frictional_regrasp_touches_the_top_and_presses_from_there():
     assert reports[-1].upper_force[2] == pytest.approx(fresh[-1].upper_force[2], rel=1e-4)
 
 
-def test_an_episode_aims_from_the_observed_rest_less_the_past_discrepancy():
+def test_an_episode_aims_at_what_is_left_over_the_truths_response_gain():
     spec = parse_plan(parse_scenario(tomllib.loads(SCENARIO)))
     assert spec.episodes == 3
     rest = np.array([2.9e-3, 1.05e-3, 0.01])
-    shift = rest_shift([np.array([1e-4, -2e-5, 0.0]), np.array([3e-5, 0.0, 0.0])],
-                       [np.array([0.5e-4, 0.0, 0.0]), np.array([1e-5, 0.0, 0.0])])
-    assert np.allclose(shift, [3.5e-5, -1e-5, 0.0])
-    e = episode_spec(spec, rest, shift)
-    assert e.target == pytest.approx((3e-3 - 2.9e-3 - 3.5e-5, 1e-3 - 1.05e-3 + 1e-5, 0.0))
-    assert np.all(rest_shift([], []) == 0)
+    # the last episode aimed at (1, 0.5) mm and the truth moved 0.4x that (and 0.1 mm across it)
+    gain = response_gain(np.array([0.4e-3, 0.3e-3, 0.0]), np.array([1e-3, 0.5e-3, 0.0]))
+    assert np.allclose(gain, [(0.4 + 0.15) / 1.25, (0.4 + 0.15) / 1.25, 1.0])
+    e = episode_spec(spec, rest, gain)
+    assert e.target == pytest.approx(((3e-3 - 2.9e-3) / gain[0], (1e-3 - 1.05e-3) / gain[1], 0.0))
+    assert np.all(response_gain(None, None) == 1)
+    # bounded: a truth that barely moved (or moved backwards) is asked for at most 10x what is left
+    assert np.allclose(response_gain(np.array([-1e-4, 0.0, 0.0]), np.array([1e-3, 0.0, 0.0]))[:2], 0.1)
+
+
+def test_a_gain_carried_from_episode_to_episode_converges_where_an_offset_overshoots():
+    """The trial's divergence (rest 846 -> 516 -> 122 -> 137 -> 257 -> 323 um): a truth that
+    moves 0.37x what the model predicts; the additive offset of the past episodes' rest
+    discrepancies (the loop before) carries the 0.63 of a large aim into a small one and
+    overshoots; the secant gain aims at what is left over the response and converges."""
+    spec, k = parse_plan(parse_scenario(tomllib.loads(SCENARIO))), 0.37
+    target = np.array(spec.target)
+
+    def loop(next_aim):
+        pos, aim, errors, history = np.zeros(3), target, [], []
+        for _ in range(6):
+            moved = k * aim
+            pos = pos + moved
+            history.append((moved, aim))
+            errors.append(np.hypot(*(pos - target)[:2]))
+            aim = next_aim(pos, history)
+        return errors
+
+    def offset(pos, history):  # the loop before: the mean rest discrepancy of the episodes after the first
+        shifts = [m - a for m, a in history[1:]]
+        return target - pos - (np.mean(shifts, axis=0) if shifts else 0.0)
+
+    def gain(pos, history):
+        return np.array(episode_spec(spec, pos, response_gain(*history[-1])).target)
+
+    before, after = loop(offset), loop(gain)
+    assert any(b > a for a, b in zip(before, before[1:], strict=False))  # the offset loop gets worse again
+    assert after[1] < 1e-12 * np.hypot(*target[:2]) and all(b <= a for a, b in zip(after, after[1:], strict=False))
 
 
 SCENARIO = """
@@ -172,3 +205,81 @@ def test_the_closed_loop_closes_on_the_rest_pose(tmp_path, pad):
         assert open_["position"] < 1e-9 and closed["position"] < 1e-9
     else:
         assert open_["position"] >= 5 * closed["position"]
+
+
+class ScriptedTruth:
+    """A truth without FE for :func:`~pushplan.identify.closed_loop._episodes`: each episode's
+    rest displacement is ``response(aimed)`` of what its plan aimed at."""
+
+    def __init__(self, response, first_rest):
+        self.response, self.rest, self.pose, self.aims = response, np.asarray(first_rest, float), np.zeros(3), []
+        self.model = type("M", (), {"pad": None})()
+
+    def let_go(self, release):
+        return self.rest
+
+    def regrasped(self, press):
+        return self
+
+
+def scripted_episodes(monkeypatch, response, first_rest, episodes=6):
+    from pushplan.identify import closed_loop as loop
+
+    truth = ScriptedTruth(response, first_rest)
+
+    def pushes(current, spec_e, truth_, first_e, opts, label=""):
+        from fe_contact import Command
+        from pushplan.identify.loop_result import Iteration
+
+        aim = np.array(spec_e.target)
+        truth.aims.append(aim)
+        truth.rest = truth.response(aim)
+        status = "infeasible" if np.hypot(*aim[:2]) > spec_e.steps * spec_e.max_step else "converged"
+        return current, [Iteration(1, Command(), np.zeros(3), {}, status, "", 0, None, 0.0, np.zeros((2, 3)))]
+
+    monkeypatch.setattr(loop, "plan", lambda *a, **k: None)
+    monkeypatch.setattr(loop, "_pushes", pushes)
+    spec = dataclasses.replace(parse_plan(parse_scenario(tomllib.loads(SCENARIO))), episodes=episodes,
+                               target_state="rest")
+    _, eps, _, stopped = loop._episodes(None, spec, truth, [], None, (), loop.LoopOptions(), 0.0)
+    return spec, eps, truth.aims, stopped
+
+
+def test_the_episodes_aim_over_the_response_gain_and_close(monkeypatch):
+    """A truth that rests 0.37x as far as aimed (the trial's 846 -> 516 -> 122 -> 137 -> 257 ->
+    323 um diverged on such a truth): the second episode aims at what is left over 0.37 and closes."""
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, lambda a: 0.37 * a, 0.37 * np.array([3e-3, 1e-3, 0.0]))
+    assert not stopped and len(eps) == 2 and eps[-1].error["within_tolerance"]
+    assert eps[-1].error["position"] < 1e-12
+    assert np.allclose(aims[0][:2], 0.63 / 0.37 * np.array(spec.target[:2]), rtol=1e-12)
+
+
+def test_an_episode_that_ends_farther_stops_the_loop(monkeypatch):
+    """The loop never goes on from an episode that left the block farther from the target
+    than the best before it: it stops and says so (exit 3 by the tolerance)."""
+    calls = []
+
+    def response(aimed):  # the first re-grasp moves the block back
+        calls.append(aimed)
+        return -0.5 * aimed
+
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, response, 0.5 * np.array([3e-3, 1e-3, 0.0]))
+    assert len(eps) == 2 and len(calls) == 1
+    assert eps[1].error["position"] > eps[0].error["position"]
+    assert "episode 2 ended" in stopped and "farther than the best" in stopped
+
+
+def test_an_episode_beyond_reach_says_nothing_of_the_gain(monkeypatch):
+    """The trial's 0.65 pad: its second episode aimed at 1.9 mm, beyond its 3 steps of 0.6 mm,
+    went as far as they allow, and that saturated response (0.27 where the truth's gain is
+    0.38) made the third aim long; the gain is kept from the last episode in reach."""
+    reach = 4 * 1.2e-3
+
+    def response(aimed):  # 0.3x, as far as the steps go
+        n = np.hypot(*aimed[:2])
+        return 0.3 * aimed * min(1.0, reach / n)
+
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, response, 0.3 * np.array([3e-3, 1e-3, 0.0]))
+    assert np.hypot(*aims[0][:2]) > reach  # 0.7 of the target left over 0.3
+    assert not stopped and eps[-1].error["within_tolerance"] and len(eps) == 3
+    assert np.allclose(aims[1][:2], (np.array(spec.target[:2]) - eps[1].rest[:2]) / 0.3, rtol=1e-9)

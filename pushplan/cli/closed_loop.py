@@ -81,6 +81,8 @@ def _print_summary(scenario, truth, spec, doc: dict, out) -> None:
           f"({'within' if c['within_tolerance'] else 'outside'} tolerance {spec.tolerance * 1e6:.3g} um), "
           f"open loop {o['position'] * 1e6:.3f} um"
           + (f", {len(doc['episodes'])} episode(s)" if doc["episodes"] else ""))
+    if doc["closed_loop"]["stopped"]:
+        print("  " + doc["closed_loop"]["stopped"])
     probabilities = [it["predicted_probability"] for it in doc["iterations"] if it["robust"] is not None]
     if probabilities:
         print(f"  robust re-plans (level {spec.robust.level:g}): predicted probability "

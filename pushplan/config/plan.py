@@ -147,10 +147,17 @@ class PlanSpec:
 
     @property
     def reachable(self) -> bool:
-        """Whether the target is within K times the step bounds."""
-        ok = self.travel <= self.steps * self.max_step
+        """Whether the target is within K times the step bounds (:meth:`reachable_from` the start)."""
+        return self.reachable_from((0.0, 0.0, 0.0))
+
+    def reachable_from(self, origin) -> bool:
+        """Whether the target is within K times the step bounds of ``origin`` (3,) (m, m,
+        rad; relative to the start, :func:`~pushplan.planning.target.reach_origin`): the
+        pose the block would end at without a push."""
+        d = [float(t) - float(o) for t, o in zip(self.target, origin, strict=True)]
+        ok = math.hypot(d[0], d[1]) <= self.steps * self.max_step
         if self.yaw_targeted:
-            ok = ok and abs(self.target[2]) <= self.steps * self.max_dtheta
+            ok = ok and abs(d[2]) <= self.steps * self.max_dtheta
         return ok
 
     def to_dict(self) -> dict:

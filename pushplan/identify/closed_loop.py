@@ -38,7 +38,7 @@ from ..planning.replan import remaining_spec, replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
-from .episodes import Episode, episode_spec, regrasp, relative_summary, rest_shift
+from .episodes import Episode, episode_spec, regrasp, relative_summary, response_gain
 from .fit import Identification, identify
 from .loop_result import ClosedLoopResult, Iteration, RobustReplan, TruthRuns, error_json, friction_of
 from .noise import NoiseModel
@@ -287,6 +287,11 @@ def _pushes(model_sc, spec, truth, first, opts: LoopOptions, label=""):
         # the model's loaded discrepancy from the truth; an identified model is fitted to the
         # observed poses, so its own is taken as none
         drift = np.zeros(3) if opts.identify else drift + bias
+        if session is not None and spec.target_state == "rest" and k + 1 < spec.steps:
+            # against the model the warm re-plans start from (the planning mesh), not the
+            # verification mesh's pose the first plan expected: a bonded lift's rest is the
+            # commanded pose, and their difference is what the re-plan would put in it
+            drift = truth.pose - _model_pose(session, [it.command for it in iterations] + [command])
         springback = result.springback.fractions
         iterations.append(Iteration(k + 1, command, truth.pose, friction_of(current), result.status,
                                     result.message, sum(result.rollouts.values()), est, time.perf_counter() - t0,
@@ -294,6 +299,15 @@ def _pushes(model_sc, spec, truth, first, opts: LoopOptions, label=""):
         opts.say(f"{label}step {k + 1}: observed ({truth.pose[0] * 1e3:.5f}, {truth.pose[1] * 1e3:.5f}) mm, "
                  f"error {pose_error(truth.pose, spec)[0] * 1e6:.3f} um")
     return current, iterations
+
+
+def _model_pose(session: PlanSession, executed) -> np.ndarray:
+    """The lower-face pose ``(x, y, yaw)`` (m, rad) of the warm ``session``'s planning-mesh
+    model after the pushes ``executed`` (fe_contact Commands after the press): the state its
+    next re-plan starts from (executed there once, as the re-plan would)."""
+    session.continue_from(executed)
+    rep = session.coarse.pressed().reports[-1]
+    return np.array([rep.lower_centroid[0], rep.lower_centroid[1], rep.lower_yaw])
 
 
 def _world(iterations, origin) -> tuple:
@@ -304,28 +318,40 @@ def _world(iterations, origin) -> tuple:
 
 def _episodes(current, spec, truth, iterations, release, press, opts: LoopOptions, t_start):
     """The first episode's release and, while its rest pose is outside the tolerance,
-    further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most; returns the
-    model planned with last, the episodes and the last episode's truth."""
+    further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most, each aiming at
+    what is left over the truth's response gain of the one before
+    (:func:`~.episodes.response_gain`; of the last one in reach of its steps); an episode
+    that ends farther from the target than the best before it stops the loop (a failure,
+    reported).  Returns the model planned
+    with last, the episodes, the last episode's truth and why the loop stopped early ("")."""
     truth.let_go(release)
     episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
                         error_json(truth.rest, spec), 0, time.perf_counter() - t_start)]
-    observed, aimed = [], []
+    stopped, gain = "", np.ones(3)
     while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
-        t0, index = time.perf_counter(), len(episodes) + 1
-        origin = episodes[-1].rest
-        spec_e = episode_spec(spec, origin, rest_shift(observed, aimed))
+        t0, index, last = time.perf_counter(), len(episodes) + 1, episodes[-1]
+        origin = last.rest
+        if not any(it.plan_status == "infeasible" for it in last.iterations):
+            # an episode that aimed beyond reach went as far as the steps allow: says nothing of the gain
+            gain = response_gain(last.rest - last.origin, last.aimed)
+        spec_e = episode_spec(spec, origin, gain)
         opts.say(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
         truth = truth.regrasped(press)
         first_e = plan(current, spec_e, baseline=False)
         current, its = _pushes(current, spec_e, truth, first_e, opts, f"episode {index} ")
         rest = truth.let_go(release)
-        observed.append(rest)
-        aimed.append(np.array(spec_e.target))
         world = origin + rest
         episodes.append(Episode(index, origin, np.array(spec_e.target), _world(its, origin), origin + truth.pose,
                                 world, error_json(world, spec), 1 if truth.model.pad is None else 0,
                                 time.perf_counter() - t0))
-    return current, episodes, truth
+        best = min(e.error["position"] for e in episodes[:-1])
+        if episodes[-1].error["position"] > best:
+            stopped = (f"episode {index} ended {episodes[-1].error['position'] * 1e6:.3f} um off, farther than the "
+                       f"best episode's {best * 1e6:.3f} um: the loop stops (the truth does not respond as its "
+                       "gain predicted)")
+            opts.say(stopped)
+            break
+    return current, episodes, truth, stopped
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
@@ -355,9 +381,10 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     open_final = _final(open_truth, spec, release)
     truth = first_truth = _new_truth(truth_sc, press)
     current, iterations = _pushes(model_sc, spec, truth, first, opts)
-    episodes = []
+    episodes, stopped = [], ""
     if spec.target_state == "rest":
-        current, episodes, truth = _episodes(current, spec, truth, iterations, release, press, opts, t_start)
+        current, episodes, truth, stopped = _episodes(current, spec, truth, iterations, release, press, opts,
+                                                      t_start)
         iterations = [it for e in episodes for it in e.iterations]
         final_pose = episodes[-1].rest
     else:
@@ -368,5 +395,5 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     return ClosedLoopResult(
         scenario=model_sc, truth=truth_sc, spec=spec, identify=use_identify, robust=opts.robust,
         open_commands=tuple(planar_commands(first.commands)), open_final=open_final, final_pose=final_pose,
-        iterations=tuple(iterations), episodes=tuple(episodes), final_estimates=final,
+        iterations=tuple(iterations), episodes=tuple(episodes), final_estimates=final, stopped=stopped,
         wall_time=time.perf_counter() - t_start, runs=TruthRuns(first_truth, open_truth, planned))

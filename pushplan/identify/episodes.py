@@ -71,22 +71,43 @@ def relative_summary(summary, origin: np.ndarray):
                                lower_yaw=summary.lower_yaw - float(origin[2]))
 
 
-def episode_spec(spec: PlanSpec, origin: np.ndarray, shift: np.ndarray) -> PlanSpec:
+def episode_spec(spec: PlanSpec, origin: np.ndarray, gain: np.ndarray) -> PlanSpec:
     """``spec`` for an episode from the rest pose ``origin`` (world, m, m, rad): the
-    target relative to it, less ``shift`` (:func:`rest_shift`)."""
+    rest displacement left to the target, divided by the truth's response ``gain``
+    (:func:`response_gain`, (3,)), as the episode's target relative to ``origin``."""
     mask = np.array([1.0, 1.0, float(spec.yaw_targeted)])
-    target = (np.array(spec.target) - origin - shift) * mask
+    target = (np.array(spec.target) - origin) / np.asarray(gain, float) * mask
     return dataclasses.replace(spec, target=tuple(float(v) for v in target))
 
 
-def rest_shift(observed: list[np.ndarray], expected: list[np.ndarray]) -> np.ndarray:
-    """The shift (3,) of the next episode's target: the mean of the past episodes'
-    rest discrepancies ``observed - expected`` (each (3,), the truth's rest
-    displacement over its episode less the one its plan aimed at), taken to persist
-    (modifier adaptation on the observed rest poses); zero before any."""
-    if not observed:
-        return np.zeros(3)
-    return np.mean([o - e for o, e in zip(observed, expected, strict=True)], axis=0)
+GAIN_BOUNDS = (0.1, 10.0)
+"""The response gain of :func:`response_gain` is clipped to these: an episode aims at most
+10x further than what is left (and at least a tenth of it), whatever one episode measured."""
+NO_AIM = 1e-12
+"""An aimed displacement (m, or rad) below which an episode says nothing about the gain."""
+
+
+def response_gain(observed: np.ndarray | None, aimed: np.ndarray | None) -> np.ndarray:
+    """The truth's rest response to what the last episode aimed at (3,): the secant gain
+
+        g_xy = (r . a) / (a . a)   over (x, y),    g_yaw = r_yaw / a_yaw,
+
+    ``r`` the rest displacement the truth made over that episode, ``a`` the one its plan
+    aimed at (each (3,), m, m, rad), clipped to :data:`GAIN_BOUNDS`; ones before any
+    episode (or where nothing was aimed).  The next episode aims at ``left / g``: a truth
+    that moves 0.4x what the model predicts is asked for 2.5x (a gain, not an additive
+    offset carried from one re-grasp to the next, which overshoots once the block is
+    close: the offset does not shrink with what is left)."""
+    g = np.ones(3)
+    if observed is None:
+        return g
+    r, a = np.asarray(observed, float), np.asarray(aimed, float)
+    aa = float(a[0] ** 2 + a[1] ** 2)
+    if aa > NO_AIM**2:
+        g[:2] = float(r[0] * a[0] + r[1] * a[1]) / aa
+    if abs(a[2]) > NO_AIM:
+        g[2] = r[2] / a[2]
+    return np.clip(g, *GAIN_BOUNDS)
 
 
 @dataclass(frozen=True)

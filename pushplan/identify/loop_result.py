@@ -120,6 +120,7 @@ class ClosedLoopResult:
     final_estimates: Identification | None
     wall_time: float
     runs: TruthRuns
+    stopped: str = ""  # why the episodes stopped before the tolerance or their cap ("": they did not)
 
     @property
     def within_tolerance(self) -> bool:
@@ -150,7 +151,7 @@ class ClosedLoopResult:
             "closed_loop": {"commands": [command_to_dict(it.command) for it in self.iterations],
                             "final_pose": pose_json(self.final_pose),
                             "final_error": error_json(self.final_pose, spec),
-                            "episodes": len(self.episodes) or None},
+                            "episodes": len(self.episodes) or None, "stopped": self.stopped or None},
             "final_estimates": identified_json(self.final_estimates),
             "iterations": [it.to_dict() for it in self.iterations],
             "episodes": [e.to_dict() for e in self.episodes],

@@ -47,8 +47,11 @@ class Correction:
     """
 
     def __init__(self, planner: ReducedPlanner, timings: dict, log=None, scored: str = "verification",
-                 modifier=None, warm: NlpSolution | None = None, method: str = DEFAULT_REFINEMENT):
+                 modifier=None, warm: NlpSolution | None = None, method: str = DEFAULT_REFINEMENT,
+                 reachable: bool | None = None):
         self.planner, self.spec, self.timings, self.log = planner, planner.spec, timings, log
+        # whether the target is within the step bounds of the start (planner's reach_message)
+        self.reachable = planner.spec.reachable if reachable is None else reachable
         self.scored, self.method = scored, method  # the phase whose best rollout is the result
         self.modifier = np.zeros(3) if modifier is None else np.asarray(modifier, float)
         self.warm = warm  # where the first solve starts (None: the naive commands)
@@ -70,7 +73,7 @@ class Correction:
             roll, pos_err = self._iterate(phase, fe, j)
             if within_tolerance(roll.final(self.spec.target_state), self.spec):
                 break
-            if not self.spec.reachable and abs(previous_error - pos_err) < NO_PROGRESS * self.spec.tolerance:
+            if not self.reachable and abs(previous_error - pos_err) < NO_PROGRESS * self.spec.tolerance:
                 break
             previous_error = pos_err
 

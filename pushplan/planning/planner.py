@@ -48,7 +48,7 @@ from .nlp import NlpSolution, ReducedPlanner
 from .result import PlanResult
 from .rollouts import FeRollouts
 from .status import plan_status
-from .target import naive_commands, reach_message
+from .target import naive_commands, reach_message, reach_origin
 
 __all__ = ["CARRY_LAG_FRACTION", "DEFAULT_REFINEMENT", "NO_PROGRESS", "REFINEMENTS", "PlanSession", "plan",
            "parse_plan", "plan_commands_json", "plan_document"]
@@ -193,15 +193,16 @@ class PlanSession:
         t_start = time.perf_counter()
         spec = spec or self.spec
         timings = dict.fromkeys(PHASE_TIMINGS, 0.0)
-        reach = reach_message(spec)
-        if reach:
-            self._say("warning: " + reach)
         warm, modifier = self._start(spec)
         timings["calibration"], self.calibration_time = self.calibration_time, 0.0
-        self.nlp.retarget(spec, start_lag(self.coarse) if self.coarse.relative else np.zeros(3))
+        lag = start_lag(self.coarse) if self.coarse.relative else np.zeros(3)
+        reach = reach_message(spec, reach_origin(spec, lag, self.springback.fractions))
+        if reach:
+            self._say("warning: " + reach)
+        self.nlp.retarget(spec, lag)
         fine = self.fine if verify else None
         scored = "verification" if fine is not None else "planning"
-        loop = Correction(self.nlp, timings, self.log, scored, modifier, warm, self.refinement)
+        loop = Correction(self.nlp, timings, self.log, scored, modifier, warm, self.refinement, reachable=not reach)
         loop.run("planning", self.coarse)
         if fine is not None:
             loop.run("verification", fine)

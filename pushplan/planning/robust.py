@@ -362,7 +362,7 @@ def plan_robust(scenario: Scenario, distribution: Distribution, spec: PlanSpec, 
                   f"< level {level:g}: no commands found reach it in {len(evals)} evaluations; the commands of the "
                   "highest probability found are reported"))
     status = "converged" if reached else "not_converged"
-    if not spec.reachable:
+    if nominal.status == "infeasible":  # its reach from the start (a rest target's from its spring-back)
         status = "infeasible"
     result = dataclasses.replace(nominal, verified=ev.at_estimate, status=status, message="robust plan: " + message)
     if log is not None:

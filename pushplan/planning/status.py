@@ -22,11 +22,11 @@ def plan_status(spec: PlanSpec, verified: Rollout, reach: str, mesh: str = "veri
     verified : Rollout
         The best verified rollout.
     reach : str
-        :func:`~.target.reach_message` of ``spec`` (empty for a reachable target).
+        :func:`~.target.reach_message` of ``spec`` from its start (empty for a reachable target).
     mesh : str
         The mesh the result was verified on (``"verification"`` or ``"planning"``).
     """
-    if not spec.reachable:
+    if reach:
         return "infeasible", reach
     on = "" if mesh == "verification" else f" (on the {mesh} mesh)"
     if within_tolerance(verified.final(spec.target_state), spec):

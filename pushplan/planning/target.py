@@ -39,12 +39,28 @@ def within_tolerance(pose, spec: PlanSpec) -> bool:
     return pos <= spec.tolerance and yaw <= spec.yaw_tolerance
 
 
-def reach_message(spec: PlanSpec) -> str:
-    """Why the target is beyond the step bounds, or ``""`` when it is reachable."""
-    if spec.reachable:
+def reach_origin(spec: PlanSpec, lag, springback) -> np.ndarray:
+    """Where the reach of a plan from a loaded state is measured from (3,) (m, m, rad),
+    relative to the lower face there: the pose the block would end at without a push.
+
+    A loaded target: the lower face itself (zeros; the lag is carried along by the pushes).
+    A rest target: the rest the state would spring back to, ``s (u - l)``
+    (:class:`~.springback.Springback`, ``lag = u - l`` the start's, (3,)); after pushes of
+    total ``c`` the rest is about ``l + s lag + c``, so the commands' bound reaches
+    ``K max_step`` from there (a bonded lift, ``s = 1``: from the upper face)."""
+    if spec.target_state != "rest":
+        return np.zeros(3)
+    return np.asarray(springback, float) * np.asarray(lag, float)
+
+
+def reach_message(spec: PlanSpec, origin=(0.0, 0.0, 0.0)) -> str:
+    """Why the target is beyond the step bounds from ``origin`` (:func:`reach_origin`),
+    or ``""`` when it is reachable."""
+    if spec.reachable_from(origin):
         return ""
-    return (f"target {spec.travel * 1e3:.4g} mm"
-            + (f" / {math.degrees(spec.target[2]):.4g} deg" if spec.yaw_targeted else "")
+    d = np.array(spec.target) - np.asarray(origin, float)
+    return (f"target {math.hypot(d[0], d[1]) * 1e3:.4g} mm"
+            + (f" / {math.degrees(d[2]):.4g} deg" if spec.yaw_targeted else "")
             + f" is beyond reach of {spec.steps} steps of {spec.max_step * 1e3:.4g} mm"
             + (f" / {math.degrees(spec.max_dtheta):.4g} deg" if spec.yaw_targeted else "")
             + "; planning the closest reachable pose")
