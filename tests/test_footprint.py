@@ -224,3 +224,14 @@ def test_fields_npz_holds_the_pad_force_of_each_node_under_it(tmp_path, friction
     assert np.all(np.abs(force[:, :, 2]) > 0)  # every node under the pad presses
     for s, fs in zip(steps, force, strict=True):
         assert np.allclose(fs.sum(axis=0), s["upper_force"], rtol=1e-12, atol=1e-15)
+
+
+def test_a_let_go_moves_nothing_and_is_a_bonded_pads():
+    from fe_contact import LetGo, initial_state
+    from fe_contact.stepping.step import step
+
+    with pytest.raises(ValueError, match="does not move"):
+        LetGo(dz=1e-4)
+    m = model(None, pad=Friction(0.9, 0.9))
+    with pytest.raises(ValueError, match="bonded pad"):
+        step(m, initial_state(m), LetGo())
