@@ -57,7 +57,7 @@ from .stepping.model import (
 )
 from .stepping.model import LOCAL_METHODS
 from .stepping.pose import ZERO_MOTION, face_centroid_displacement, planar_yaw, twist_angle, wrap_angle
-from .stepping.command import PadLoad
+from .stepping.command import LetGo, PadLoad
 from .stepping.predictor import StepGuess
 from .stepping.release import ERROR_TOL_REMOVED, Release, ReleaseSchedule, Rest, rest_check
 from .stepping.adjoint import RolloutGradient, rollout_gradient
@@ -107,6 +107,7 @@ __all__ = [
     "project_elliptic_cone",
     "Release",
     "release_to_rest",
+    "LetGo",
     "PadLoad",
     "ERROR_TOL_REMOVED",
     "ReleaseSchedule",

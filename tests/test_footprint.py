@@ -129,6 +129,20 @@ def test_bad_footprints_are_refused_naming_the_key(extra, key):
     assert str(e.value).startswith(key) and "\n" not in str(e.value)
 
 
+def test_footprint_messages_say_what_is_missing_in_plain_numbers():
+    """pad_offset alone (no size, no shape) names the missing pad_size, not pad_radius;
+    a pad outside the face prints plain floats (not np.float64(...))."""
+    with pytest.raises(InputError) as e:
+        parse("pad_offset = [0.005, 0.0]")
+    assert str(e.value).startswith("gripper.pad_size is missing") and "pad_radius (m)" in str(e.value)
+    with pytest.raises(InputError) as e:
+        parse('pad_shape = "disc"')
+    assert str(e.value).startswith("gripper.pad_radius is missing")
+    with pytest.raises(InputError) as e:
+        parse("pad_size = [0.02, 0.02]\npad_offset = [0.015, 0.0]")
+    assert "([0.04, 0.03] m)" in str(e.value) and "np." not in str(e.value)
+
+
 def test_a_bad_footprint_exits_2_with_one_line(tmp_path, capsys):
     path = tmp_path / "s.toml"
     path.write_text(GRIPPER + "pad_size = [0.02, 0.02]\npad_offset = [0.0, 0.02]\n")
@@ -136,3 +150,88 @@ def test_a_bad_footprint_exits_2_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "gripper.pad_offset" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+OFFSET = {"rectangle": Footprint("rectangle", (0.02, 0.02), (0.01, 0.0)),
+          "disc": Footprint("disc", (0.022, 0.022), (-0.009, 0.004))}
+
+
+def offset_release(footprint):
+    from fe_contact import Release, release_to_rest
+
+    m = model(footprint)
+    state, reports = run(m, [Command(dz=-1e-4), Command(dx=2e-4, dy=1e-4)])
+    state, release, rest = release_to_rest(m, state, Release("lift", 4), reports[-1])
+    return m, state, release, rest
+
+
+@pytest.mark.parametrize("name", list(OFFSET))
+def test_a_bonded_offset_pad_lets_go_and_the_block_settles(name):
+    """Set down from an offset pad, the block's lower face sticks to the floor while
+    it straightens: at zero vertical force the pad still holds 0.3 W in the plane,
+    which no plate height removes (the release ran out its 200 steps).  The pad lets
+    go (LetGo): settled, N = W, the pad carries nothing and no node is held."""
+    from fe_contact import LetGo
+
+    m, state, release, rest = offset_release(OFFSET[name])
+    assert isinstance(release[-1].command, LetGo) and release[-2].command.__class__ is Command
+    assert np.linalg.norm(release[-2].upper_force[:2]) > 0.2 * m.weight  # what the pad held before it let go
+    assert rest.settled, rest.reason
+    assert release[-1].normal_force == pytest.approx(m.weight, rel=1e-9) and rest.pad_force == 0.0
+    assert len(release) < 30  # not the 200-step cap
+    f = np.linalg.norm(nodal_force(m, state), axis=1)
+    assert f[m.held_nodes].max() <= 1e-9 * m.weight  # the upper face is free: no force under the pad either
+
+
+def test_the_let_go_threshold_does_not_move_the_rest(monkeypatch):
+    """LET_GO_FORCE (the vertical force at which an offset pad lets go) is a device:
+    its effect, 1e-6 W against 1e-9 W, on the rest pose is below 1e-9 of the lag."""
+    import fe_contact.stepping.release as release_module
+
+    _, a, _, _ = offset_release(OFFSET["rectangle"])
+    monkeypatch.setattr(release_module, "LET_GO_FORCE", 1e-9)
+    _, b, release, rest = offset_release(OFFSET["rectangle"])
+    assert rest.settled and abs(release[-2].upper_force[2]) < 1e-8  # let go nearer zero
+    lag = 2.236e-4  # the push, m
+    assert np.abs(a.displacement - b.displacement).max() <= 1e-9 * lag
+
+
+def test_the_let_go_is_not_differentiated():
+    from fe_contact import Release, rollout_derivatives
+
+    d = rollout_derivatives(model(OFFSET["rectangle"]), [Command(dz=-1e-4), Command(dx=2e-4, dy=1e-4)],
+                            parameters=("young",), release=Release("lift", 4))
+    assert d.status.value != "converged" and "let-go" in d.message
+
+
+@pytest.mark.parametrize("friction", ["", "friction = 0.9\n"])
+def test_fields_npz_holds_the_pad_force_of_each_node_under_it(tmp_path, friction):
+    """fields.npz: ``pad_nodes`` are the nodes under a 20 x 20 mm pad on the 40 x 30 mm
+    block, ``pad_force`` (steps, n_pad, 3) each one's pad force, every one loaded, summing
+    to the step's ``upper_force`` of summary.json."""
+    import json
+
+    path = tmp_path / "s.toml"
+    path.write_text(GRIPPER.replace("poisson = 0.3", "poisson = 0.3\ndensity = 1000.0") + friction +
+                    "pad_size = [0.02, 0.02]\n[[load]]\ndx = 2e-4\ndy = 1e-4\n")
+    out = tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "--quiet", "--no-recording"]) == 0
+    steps = json.loads((out / "summary.json").read_text())["steps"]
+    with np.load(out / "fields.npz") as f:
+        nodes, force = f["pad_nodes"], f["pad_force"]
+    m = parse(friction + "pad_size = [0.02, 0.02]\n").model()
+    assert sorted(nodes) == sorted(under(m)) and force.shape == (len(steps), 6, 3)
+    assert np.all(np.abs(force[:, :, 2]) > 0)  # every node under the pad presses
+    for s, fs in zip(steps, force, strict=True):
+        assert np.allclose(fs.sum(axis=0), s["upper_force"], rtol=1e-12, atol=1e-15)
+
+
+def test_a_let_go_moves_nothing_and_is_a_bonded_pads():
+    from fe_contact import LetGo, initial_state
+    from fe_contact.stepping.step import step
+
+    with pytest.raises(ValueError, match="does not move"):
+        LetGo(dz=1e-4)
+    m = model(None, pad=Friction(0.9, 0.9))
+    with pytest.raises(ValueError, match="bonded pad"):
+        step(m, initial_state(m), LetGo())

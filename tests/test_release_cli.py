@@ -83,8 +83,6 @@ BAD = {
                           "gripper.friction.mu_y"),
     "frictional pad, no weight": (("density = 1000.0", "density = 0.0\n[gripper]\nfriction = 1.0"),
                                   "gripper.friction"),
-    "frictional pad, compliant": (("[release]", "[gripper]\nfriction = 1.0\nstiffness_xy = 4e4\n"
-                                                "stiffness_yaw = 5.0\n[release]"), "gripper.friction"),
 }
 
 
@@ -100,6 +98,30 @@ def test_bad_release_input_exits_2_naming_the_key(name, tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("pushplan: error: ") and key in err[0], err
     assert not (tmp_path / "out").exists()
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_compliant_gripper_with_a_frictional_pad_settles(tmp_path):
+    """fe_contact solves a compliant gripper's plate with a frictional pad (issue 39):
+    a scenario with both is simulated, not refused as bad input; the released block
+    settles with the floor carrying its weight and the plate's springs loaded during
+    the push."""
+    text = RUBBER.replace("[release]", "[gripper]\nfriction = 0.9\nstiffness_xy = 4e4\nstiffness_yaw = 5.0\n"
+                                       "[release]")
+    summary = simulate(tmp_path, text)
+    s = parse_scenario(summary["scenario"])
+    assert s.gripper.stiffness_xy == 4e4 and s.pad is not None and parse_scenario(s.to_dict()) == s
+    weight = 1000.0 * 9.81 * 0.04 * 0.03 * 0.02
+    rest = summary["rest"]
+    assert rest["status"] == "settled" and rest["normal_force"] == pytest.approx(weight, rel=1e-9)
+    assert rest["pad_force"] <= 1e-9 * weight
+
+
+def test_release_messages_name_only_what_is_allowed(tmp_path, capsys):
+    """An unknown [release] key lists the allowed keys without the removed error_tol."""
+    (tmp_path / "s.toml").write_text(RUBBER.replace("steps = 4", "steps = 4\nstepz = 3"))
+    assert main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out"), "--quiet"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "release.stepz" in err and "allowed: away, height, mode, steps)" in err and "error_tol" not in err
 
 
 def test_a_command_file_that_opens_the_gripper_exits_2(tmp_path, capsys):

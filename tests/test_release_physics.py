@@ -103,6 +103,21 @@ def test_a_release_cut_short_is_not_settled():
     assert 0.3 * m.weight < rest.pad_force < 0.7 * m.weight
 
 
+def test_every_accepted_steps_fits_the_release_limit():
+    """The default max_steps follows steps (2 steps + PUT_DOWN_STEPS): a release of 200
+    increments, which the fixed limit of 200 cut short (the ramp alone takes 200),
+    settles; the largest steps accepted gets a limit above it."""
+    from fe_contact.stepping.release import MAX_STEPS, PUT_DOWN_STEPS
+
+    assert Release("lift", 16).max_steps == 200 and Release("lift", MAX_STEPS).max_steps > 2 * MAX_STEPS
+    m = rubber()
+    state, loaded = pushed(m)
+    _, reports, rest = release_to_rest(m, state, Release("lift", 200), loaded)
+    assert rest.settled, rest.reason
+    assert 200 < len(reports) <= 2 * 200 + PUT_DOWN_STEPS
+    assert reports[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+
+
 def test_lift_needs_a_press():
     m = rubber()
     with pytest.raises(ValueError, match="press"):

@@ -101,7 +101,7 @@ class Footprint:
         if np.any(np.abs(self.offset) + half > sides / 2 + eps):
             key = "size" if np.any(half > sides / 2 + eps) else "offset"
             raise ValueError(f"{key}: the pad ({self.shape} {list(self.size)} m at offset {list(self.offset)} m) "
-                             f"reaches outside the upper face ({list(sides)} m)")
+                             f"reaches outside the upper face ({sides.tolist()} m)")
         rel = face_xy - (np.asarray(centre, dtype=float)[:2] + self.offset)
         if self.shape == "disc":
             under = np.hypot(rel[:, 0], rel[:, 1]) <= half[0] + eps

@@ -77,3 +77,18 @@ class PadLoad:
     def moves(self) -> bool:
         """A load step moves the pad (its height is solved for)."""
         return True
+
+
+@dataclass(frozen=True)
+class LetGo(Command):
+    """A bonded pad lets go (issue 39): the step after a bonded lift's put-down
+    has brought the pad's normal force to zero while the pad still carries an
+    in-plane force (an offset footprint: the block's friction on the floor
+    locks it in as the plate sets the block down).  The pad opens: the upper
+    face becomes free, the gripper does not move, and the block comes to
+    equilibrium on the floor alone (:func:`fe_contact.stepping.held.let_go_step`)."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.moves:
+            raise ValueError(f"a LetGo step does not move the gripper, got {self!r}")

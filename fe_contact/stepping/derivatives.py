@@ -49,7 +49,7 @@ import numpy as np
 from ..fem.loads import Gripper
 from .model import Command, Friction, Model, State, Status, initial_state
 from .release import Release, rest_check
-from .command import PadLoad
+from .command import LetGo, PadLoad
 from .release_derivatives import (LoadStep, RecordingSequence, load_step_derivative, put_down_root,
                                   release_height_derivative, whole_steps)
 from .step_derivative import StateDerivative, step_derivative
@@ -338,6 +338,9 @@ def _sequence_step(model, sequence, k, K, state, new_state, report, run: _Run):
     moves with ``f`` times its derivative); a pad's load step as it was taken
     (:func:`~fe_contact.stepping.release_derivatives.load_step_derivative`).
     Returns (state, d_state, outputs, d_outputs, the margins of its contacts), or (status, message)."""
+    if isinstance(report.command, LetGo):
+        return Status.TANGENT_SINGULAR, (f"step {state.step_index + 1}: a bonded pad's let-go (an offset pad that "
+                                         "still held the block in the plane) is not differentiated")
     d_state, seeds = run.d_state, run.seeds
     d_whole, load = _whole_command(model, sequence, k, K, d_state, seeds, run.path)
     if load is not None:  # a pad's load step: backward Euler or the midpoint rule

@@ -52,6 +52,26 @@ def held_step(model: Model, state: State, command: Command, translation: np.ndar
     return eq, checked(model, measure(model, state, command, eq, t0, loading, extra))
 
 
+def let_go_step(model: Model, state: State, command: Command, t0: float, local_problem_hook=None,
+                consume: bool = False) -> tuple[State, StepReport]:
+    """The step in which a bonded pad lets go (:class:`~fe_contact.stepping.command.LetGo`):
+    the upper face free (``model.released()``), the gripper where it is, the
+    block in equilibrium under its weight and the floor's contacts alone.
+    Every dof is free: the proximal springs of :func:`pad_loading` make the
+    flexibility matrix exist and exert no force at convergence, so the
+    converged step solves the unregularised problem; the Newton loop starts
+    at the state (the pad's residual forces are what it removes).  Returns the
+    new state (``state`` if the step failed) and the report (``upper_force``
+    zero: nothing holds the face)."""
+    free = model.released()
+    loading = pad_loading(free, state)
+    eq = equilibrium(free, state, np.array(state.displacement, dtype=float), local_problem_hook, consume, loading)
+    report = checked(free, measure(free, state, command, eq, t0, loading))
+    if not report.converged:
+        return state, report
+    return next_state(state, eq, state.upper_translation, state.upper_rotation, report), report
+
+
 def held_loading(model: Model) -> Loading:
     """The applied loads of a held step: the self-weight, if any."""
     return NO_LOADING if model.body_force is None else Loading(external=model.body_force)

@@ -108,8 +108,18 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         plate=extra.pop("plate", np.array(state.plate)),
         weight=model.weight,
         regularisation_force=float(np.linalg.norm(spring_f)),
-        pad_reaction=eq.reaction[n_lower:],
+        pad_reaction=eq.reaction[n_lower:], pad_force=_pad_forces(model, eq),
     )
+
+
+def _pad_forces(model: Model, eq: Equilibrium) -> np.ndarray:
+    """(n_held, 3) N, world: the pad's force on each node under it, whose sum is
+    :func:`_balance`'s drive or pad force (zeros for a released face)."""
+    if model.pad is not None:
+        return model.contacts.to_world(eq.reaction)[model.n_lower:]
+    if eq.internal_force is None or model.upper_dofs.size == 0:
+        return np.zeros((model.held_nodes.size, 3))
+    return eq.internal_force[model.upper_dofs].reshape(-1, 3)
 
 
 def _balance(model: Model, eq: Equilibrium, contact_world: np.ndarray, loading: Loading, extra: dict):

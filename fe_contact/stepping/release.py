@@ -36,7 +36,14 @@ height where the plate carries nothing: the plate's vertical force ``F(h) =
 W - N(h)`` (N, ``N`` the floor's normal force at plate height ``h``) is
 brought to zero by regula falsi (bisection when it stalls) started from the
 column's own-weight compression ``h_0 = -W H / (2 E A)`` (m); the lift stops
-when ``|F| <= SETTLE_FORCE / 10`` times the weight.
+when ``|F| <= SETTLE_FORCE / 10`` times the weight.  If the plate
+still carries an in-plane force once ``|F| <= LET_GO_FORCE`` times the weight (a pad off the face's centre: the block,
+hanging from it, sags on its far side, and as it is set down its lower face
+sticks to the floor while it straightens, which locks a horizontal force
+between the floor and the plate; measured 0.35 W on 6 x 5 x 2), no plate
+height removes it: the pad lets go (:class:`~fe_contact.stepping.command.LetGo`),
+one step with the upper face free in which the block comes to equilibrium on
+the floor alone.
 
 The earlier ``open`` release (every upper-face traction decaying to zero
 through an assumed pad stiffness and grip schedule) is gone: its rest pose
@@ -53,7 +60,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ..fem.elasticity import internal_force
-from .command import PadLoad
+from .command import LetGo, PadLoad
 from .step import step
 from .release_path import put_down_target
 from .model import Command, Model, State, StepReport
@@ -72,12 +79,20 @@ LOAD_LOG_WEIGHT = 0.5
 """The share of :func:`pad_load_schedule`'s steps uniform in the logarithm of the load."""
 MAX_STEPS = 100_000
 """Largest ``Release.steps`` and ``max_steps`` accepted (each step a Newton loop: a bound on the release's work)."""
+PUT_DOWN_STEPS = 168
+"""The default ``Release.max_steps`` is ``2 steps`` and this many more: a bonded block's put-down (its regula falsi
+on the plate's height, bisecting when it stalls) and the settle steps."""
 LIFT_TOL = 1e-9
 """Floor normal force, relative to the loaded one, below which a lifted block hangs free of the floor."""
 SETTLE_FORCE = 1e-9
 """Rest: the plate's force and every node's out-of-balance force at most this fraction of the force scale
 (the weight; the loaded normal force for a block without weight)."""
 SETTLE_MOTION = 1e-9
+LET_GO_FORCE = 1e-6
+"""A bonded pad that still carries an in-plane force when put down lets go (:class:`LetGo`) once its vertical
+force is at most this fraction of the weight: regula falsi on the plate's height cannot bring it below the Newton
+loop's resolution (measured: stalled at 1.1e-9 W with 0.32 W in the plane, 4 x 3 x 2), and letting go of the rest
+moves the block by about ``LET_GO_FORCE W H / (E A)`` (measured against 1e-9: tests/test_footprint.py)."""
 """Rest: one more step moves no node by more than this fraction of the block's largest dimension."""
 
 
@@ -95,8 +110,12 @@ class Release:
         (:func:`pad_load_schedule`), which set the rest pose's accuracy
         (``scheme``: docs/release.md) and the release's cost (``steps`` step
         solves, at most ``2 steps`` with the midpoint rule).
-    max_steps : int
-        Limit on the release's steps in all (ramp, extra lift, put-down).
+    max_steps : int or None
+        Limit on the release's steps in all (ramp, extra lift, put-down), in
+        [1, MAX_STEPS]; None (default): ``2 steps + PUT_DOWN_STEPS`` (the ramp's
+        or the load steps, as many again for a bonded block's lift off, and the
+        put-down; 200 at 16 steps), so that no ``steps`` accepted is cut short
+        by it.
     height : float
         Height above its reference pose the gripper rises to (m, >= 0): the
         robot's motion, which changes nothing once the pad is open; a bonded
@@ -118,7 +137,7 @@ class Release:
 
     mode: str
     steps: int
-    max_steps: int = 200
+    max_steps: int | None = None
     height: float = 0.0
     away: tuple = (0.0, 0.0)
     error_tol: None = None
@@ -131,6 +150,9 @@ class Release:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("steps", "max_steps"):
             v = getattr(self, name)
+            if v is None and name == "max_steps":  # derived from steps (above MAX_STEPS for the largest steps)
+                object.__setattr__(self, "max_steps", 2 * int(self.steps) + PUT_DOWN_STEPS)
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_STEPS:
                 raise ValueError(f"{name} must be an integer in [1, {MAX_STEPS}], got {v!r}")
         if self.error_tol is not None:
@@ -256,9 +278,15 @@ class ReleaseSchedule:
         the highest where it pushes, bisecting when a step does not halve
         ``|F|``; below the first bracket, the own-weight compression."""
         h, force = float(state.upper_translation[2]), float(report.upper_force[2])
+        if isinstance(report.command, LetGo):
+            return None
         if abs(force) <= 0.1 * SETTLE_FORCE * self.weight and np.linalg.norm(report.upper_force) <= \
                 SETTLE_FORCE * self.weight:
             return None
+        if abs(force) <= LET_GO_FORCE * self.weight and np.linalg.norm(report.upper_force[:2]) > \
+                SETTLE_FORCE * self.weight:  # carrying nothing vertically, the pad holds the block in the plane
+            self.height_partials = {}
+            return LetGo()
         points, touching = self.contact_points, report.normal_force > LIFT_TOL * self.weight
         slow = bool(points) and points[-1][2] and touching and abs(force) > 0.5 * abs(points[-1][1])
         points.append((h, force, touching))
@@ -345,9 +373,10 @@ def rest_check(model: Model, state: State, report: StepReport, schedule: Release
     is accepted when it is in equilibrium by the same absolute measure as the
     state."""
     scale = schedule.force_scale
-    held = model.pad is None
+    let_go = isinstance(report.command, LetGo)  # a bonded pad that opened: nothing holds the face
+    held = model.pad is None and not let_go
     pad, imbalance = _balance(model, state.displacement, state.reaction, held, report.upper_force)
-    _, further = step(model, state, Command())
+    _, further = step(model, state, LetGo() if let_go else Command())
     _, further_imbalance = _balance(model, further.displacement,
                                     np.vstack([further.reaction_local, further.pad_reaction]), held, further.upper_force)
     motion = float(np.abs(further.displacement - state.displacement).max())

@@ -98,6 +98,10 @@ class StepReport:
     pad_reaction: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     """(n_upper, 3) N, a frictional pad's contact force on each upper-face node, the pad's frame (n, t_x, t_y)
     (empty for a bonded pad)."""
+    pad_force: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(n_held, 3) N, world (x, y, z): the force the pad applies on each node under it (``Model.held_nodes``
+    order), a bonded pad's drive reaction or a frictional pad's contact force; zeros once a bonded pad let go;
+    its sum is ``upper_force``."""
 
     @property
     def converged(self) -> bool:

@@ -23,8 +23,8 @@ from dataclasses import replace
 import numpy as np
 
 from .gripper import compliant_step
-from .held import held_step, joined_report, next_state
-from .command import PadLoad
+from .held import held_step, joined_report, let_go_step, next_state
+from .command import LetGo, PadLoad
 from .model import Command, Model, State, StepReport
 from .pad_load import load_step
 from .predictor import StepGuess, commanded_pose
@@ -42,7 +42,9 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     command : Command or PadLoad
         Rigid motion increment of the upper face, or (a frictional pad only)
         the pad's load at the end of the step, its height solved for
-        (:mod:`fe_contact.stepping.pad_load`).
+        (:mod:`fe_contact.stepping.pad_load`), or (a bonded pad)
+        :class:`~fe_contact.stepping.command.LetGo`: the pad opens, the upper
+        face is free (:func:`~fe_contact.stepping.held.let_go_step`).
     local_problem_hook : callable, optional
         Called as ``hook(W, q, solution)`` after every local contact solve with
         the problem exactly as the local solver got it: ``u = W r + q`` in the
@@ -78,6 +80,8 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     """
     _check_arguments(model, state, command, guess)
     t0 = time.perf_counter()
+    if isinstance(command, LetGo):  # a bonded pad opens: the upper face free
+        return let_go_step(model, state, command, t0, local_problem_hook, consume)
     if model.pad is not None:  # a pose or a load (PadLoad); a compliant gripper's plate solved in the loop
         return _split_step(model, state, command, t0, local_problem_hook, 0)
     if not model.gripper.rigid:
@@ -151,6 +155,8 @@ def _check_arguments(model, state, command, guess=None) -> None:
         raise ValueError(f"state must be a State, got {type(state).__name__}")
     if isinstance(command, PadLoad) and model.pad is None:
         raise ValueError("a PadLoad command needs a frictional pad (Model(pad=Friction(...)))")
+    if isinstance(command, LetGo) and model.pad is not None:
+        raise ValueError("a LetGo command is a bonded pad's (a frictional pad opens by PadLoad(0))")
     if not isinstance(command, (Command, PadLoad)):
         raise ValueError(f"command must be a Command, got {type(command).__name__}")
     expected = {"displacement": (model.mesh.n_nodes, 3), "reaction": (model.n_contacts, 3),

@@ -34,7 +34,8 @@ A scenario reads::
     friction = "bonded"                       # the pad on the upper face: "bonded" (default, the paper's
                                               # displacement control), mu (isotropic, >= 0), or a table
                                               # {mu_x = .., mu_y = .., angle_deg = ..}: a rigid frictional
-                                              # contact body (rigid gripper, lift release with weight)
+                                              # contact body (rigid or compliant gripper, lift release with
+                                              # weight)
     pad_shape = "rectangle"                   # optional: the pad's footprint, "rectangle" or "disc"
     pad_size = [0.01, 0.01]                   # rectangle sides along x, y (m) (omitted: the whole face)
     pad_radius = 0.005                        # disc radius (m), instead of pad_size
@@ -252,9 +253,6 @@ def _gripper(top: Table) -> tuple[Gripper | None, Friction | None]:
     if math.isinf(xy) != math.isinf(yaw):
         raise InputError("gripper.stiffness_yaw must be inf with gripper.stiffness_xy = inf, and finite with it "
                          f"finite (a gripper is rigid or compliant), got {xy} and {yaw}")
-    if pad is not None and not math.isinf(xy):
-        raise InputError(f"gripper.friction = {t.data['friction']!r} needs a rigid gripper (stiffness inf), "
-                         f"got gripper.stiffness_xy = {xy}")
     return Gripper(xy, yaw), pad
 
 
@@ -293,9 +291,14 @@ def _footprint(top: Table, size, elements) -> Footprint | None:
         return None
     shape = t.choice("pad_shape", FOOTPRINT_SHAPES, "rectangle")
     wanted, other = ("pad_radius", "pad_size") if shape == "disc" else ("pad_size", "pad_radius")
-    if other in t.data or wanted not in t.data:
+    if other in t.data:
         raise InputError(f"gripper.pad_shape = {shape!r} takes gripper.{wanted} (not {other}), got keys "
                          f"{sorted(k for k in t.data if k in FOOTPRINT_KEYS)}")
+    if wanted not in t.data:
+        given = "" if "pad_shape" in t.data else " (the default pad_shape)"
+        raise InputError(f"gripper.{wanted} is missing: a pad footprint needs its size, pad_size = [a_x, a_y] (m) "
+                         f"for pad_shape = \"rectangle\"{given} or pad_radius (m) for pad_shape = \"disc\"; "
+                         "omit every pad_* key for the whole face")
     if shape == "disc":
         side = 2 * t.number("pad_radius", positive=True, maximum=MAX_LENGTH)
         sides = (side, side)
@@ -336,9 +339,9 @@ def pad_friction_dict(pad: Friction | None):
 def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Friction | None) -> Release | None:
     if "release" not in top:
         return None
-    t = top.table("release", {"mode", "steps", "height", "away", "error_tol"}, required={"mode"})
-    if "error_tol" in t.data:
+    if isinstance(top.data["release"], dict) and "error_tol" in top.data["release"]:  # removed: not an allowed key
         raise InputError(f"release.{ERROR_TOL_REMOVED}")
+    t = top.table("release", {"mode", "steps", "height", "away"}, required={"mode"})
     if t.data.get("mode") == "open":
         raise InputError('release.mode = "open" was removed: its rest pose depended on an assumed pad stiffness '
                          'and schedule; use mode = "lift" with gripper.friction = mu (the pad as a frictional contact)')

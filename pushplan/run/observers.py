@@ -12,7 +12,11 @@ fields stacked on a leading step axis: ``displacement`` (s,n,3) m, ``reaction_lo
 (s,n_lower,3) N as (n, t_x, t_y), ``reaction_world`` (s,n_lower,3) N, ``pressure``
 (s,n_lower) Pa, ``slip`` (s,n_lower) m (norm of the total tangential displacement),
 ``slip_path`` (s,n_lower) m, ``slip_increment`` (s,n_lower,2) m, ``gap`` (s,n_lower) m,
-``node_status`` (s,n_lower) 0 stick / 1 slip / 2 separated.
+``node_status`` (s,n_lower) 0 stick / 1 slip / 2 separated; the pad's nodes ``pad_nodes``
+(n_pad,) (the upper-face nodes under its footprint, all of ``upper`` without one) and
+``pad_force`` (s,n_pad,3) N, world: the force the pad applies on each of them (a bonded
+pad's drive reaction, a frictional pad's contact force; its sum is the step's
+``upper_force``).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from ..outputs.atomic import atomic_write_json, atomic_write_npz
 
 FIELD_NAMES = (
     "displacement", "reaction_local", "reaction_world", "pressure", "slip",
-    "slip_path", "slip_increment", "gap", "node_status",
+    "slip_path", "slip_increment", "gap", "node_status", "pad_force",
 )
 
 
@@ -56,7 +60,7 @@ class FieldsFile:
         mesh = run.model.mesh
         arrays = {name: np.asarray(v) for name, v in self.fields.items() if v}
         atomic_write_npz(self.path, nodes=mesh.nodes, elements=mesh.elements, lower=mesh.lower,
-                         upper=mesh.upper, lower_area=run.model.lower_area, **arrays)
+                         upper=mesh.upper, lower_area=run.model.lower_area, pad_nodes=run.model.held_nodes, **arrays)
 
 
 class RecordingFile:
