@@ -195,3 +195,29 @@ def test_a_soft_compliant_gripper_with_a_pad_balances_its_springs_and_settles():
     assert np.linalg.norm(last.plate[:2] - [1.2e-3, 4e-4]) > 1e-4  # the plate lags
     assert rest.settled, rest.reason
     assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+
+
+def test_a_bracket_whose_probes_no_local_solve_solves_gives_up_after_a_few():
+    """The load equation's bracket (pad_load.LoadDrive._bracket) shortens a probe
+    that no local method solves and gives up after MAX_FAILED_PROBES of them,
+    well before the evaluation cap, also where every other probe converges (a pad
+    10 x the floor's crept so towards a height beyond which no local solve
+    converged: each failure costs every method, the paper's Uzawa up to 20000
+    iterations; 211 of its 221 s release)."""
+    from fe_contact.stepping.pad_load import MAX_FAILED_PROBES, MAX_LOAD_EVALUATIONS, LoadDrive
+
+    def drive(solvable):
+        calls = []
+        stub = SimpleNamespace(evaluations=0, cap=MAX_LOAD_EVALUATIONS, slope=1.0, tolerance=1e-12)
+
+        def at(dh):
+            calls.append(dh)
+            stub.evaluations += 1
+            return SimpleNamespace(converged=solvable(len(calls))), 1.0 - dh * 1e-3  # g > 0: no sign change near
+        return LoadDrive._bracket(stub, at, SimpleNamespace(converged=True), 1.0), calls
+
+    found, calls = drive(lambda n: False)
+    assert found is None and len(calls) == MAX_FAILED_PROBES < MAX_LOAD_EVALUATIONS
+    assert calls[1] == pytest.approx(calls[0] / 4)  # each failed probe a quarter of the last step
+    found, calls = drive(lambda n: n % 2 == 0)  # every other probe converges: the creep
+    assert found is None and len(calls) == 2 * MAX_FAILED_PROBES - 1
