@@ -195,3 +195,70 @@ def test_a_soft_compliant_gripper_with_a_pad_balances_its_springs_and_settles():
     assert np.linalg.norm(last.plate[:2] - [1.2e-3, 4e-4]) > 1e-4  # the plate lags
     assert rest.settled, rest.reason
     assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+
+
+def test_a_bracket_whose_probes_no_local_solve_solves_gives_up_after_a_few():
+    """The load equation's bracket (pad_load.LoadDrive._bracket) shortens a probe
+    that no local method solves and gives up after MAX_FAILED_PROBES of them,
+    well before the evaluation cap, also where every other probe converges (a pad
+    10 x the floor's crept so towards a height beyond which no local solve
+    converged: each failure costs every method, the paper's Uzawa up to 20000
+    iterations; 211 of its 221 s release)."""
+    from fe_contact.stepping.pad_load import MAX_FAILED_PROBES, MAX_LOAD_EVALUATIONS, LoadDrive
+
+    def drive(solvable):
+        calls = []
+        stub = SimpleNamespace(evaluations=0, cap=MAX_LOAD_EVALUATIONS, slope=1.0, tolerance=1e-12)
+
+        def at(dh):
+            calls.append(dh)
+            stub.evaluations += 1
+            return SimpleNamespace(converged=solvable(len(calls))), 1.0 - dh * 1e-3  # g > 0: no sign change near
+        return LoadDrive._bracket(stub, at, SimpleNamespace(converged=True), 1.0), calls
+
+    found, calls = drive(lambda n: False)
+    assert found is None and len(calls) == MAX_FAILED_PROBES < MAX_LOAD_EVALUATIONS
+    assert calls[1] == pytest.approx(calls[0] / 4)  # each failed probe a quarter of the last step
+    found, calls = drive(lambda n: n % 2 == 0)  # every other probe converges: the creep
+    assert found is None and len(calls) == 2 * MAX_FAILED_PROBES - 1
+
+
+def test_regula_falsi_steps_around_a_point_no_local_solve_solves():
+    """Inside the load equation's bracket (pad_load.LoadDrive._illinois) a point
+    that no local method solves is replaced by the point half way to an end, up to
+    MAX_FAILED_PROBES of them: g(h) = 0.6 - 2 h on [0, 1], unsolvable on (0.4, 0.6)
+    around the first bisection point, is solved (it gave up there); unsolvable
+    everywhere inside, the regula falsi stops after MAX_FAILED_PROBES points."""
+    from fe_contact.stepping.pad_load import MAX_FAILED_PROBES, MAX_LOAD_EVALUATIONS, LoadDrive
+
+    def illinois(solvable):
+        calls = []
+        stub = SimpleNamespace(evaluations=0, cap=MAX_LOAD_EVALUATIONS, height=1.0, tolerance=1e-9,
+                               _secant=lambda *args: None)
+
+        def at(h):
+            calls.append(h)
+            stub.evaluations += 1
+            return SimpleNamespace(converged=solvable(h)), 0.6 - 2.0 * h
+        ends = (0.0, 0.6, SimpleNamespace(converged=True)), (1.0, -1.4, SimpleNamespace(converged=True))
+        return LoadDrive._illinois(stub, at, *ends), calls
+
+    (local, g, h), calls = illinois(lambda h: not 0.4 < h < 0.6)
+    assert local.converged and abs(g) <= 1e-9 and h == pytest.approx(0.3) and 0.4 < calls[0] < 0.6
+    _, calls = illinois(lambda h: False)
+    assert len(calls) == MAX_FAILED_PROBES
+
+
+def test_a_sticky_pad_released_in_six_load_steps_settles():
+    """A pad 100 x the floor's on the small block of benchmarks/release_steps.py,
+    released in 6 load steps: its last step brackets the pad's opening and a
+    local solve inside the bracket fails (it ended unsettled, the pad carrying
+    0.24 N, before regula falsi stepped around such points)."""
+    floor = Friction(0.6, 0.2, math.radians(20.0))
+    m = Model(block_mesh((0.04, 0.03, 0.02), (3, 2, 2)), Material(2e6, 0.45, density=1000.0), floor, quadrature=2,
+              pad=Friction(60.0, 20.0, math.radians(20.0)))
+    push = Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))
+    state, pushes = run(m, [Command(dz=-4e-4), push, push])
+    _, release, rest = release_to_rest(m, state, Release("lift", 6), pushes[-1])
+    assert rest.settled, rest.reason
+    assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
