@@ -462,7 +462,7 @@ def test_predictor_gives_the_same_step_in_fewer_iterations_and_carries_large_pus
     from the predictor's to the full-Newton solution."""
     import importlib
 
-    step_module = importlib.import_module("fe_contact.stepping.held")
+    step_module = importlib.import_module("fe_contact.stepping.predictor")
     models = {reuse: make_model(0.3, 0.05, divisions=(6, 6, 3), quadrature=3,
                                 options=SolverOptions(reuse_tangent=reuse)) for reuse in (True, False)}
     model = models[True]
@@ -504,7 +504,7 @@ def test_a_large_turn_in_one_step_converges_to_the_full_newton_solution(monkeypa
     follows the turn; from the upper face turned alone an element inverts."""
     import importlib
 
-    step_module = importlib.import_module("fe_contact.stepping.held")
+    step_module = importlib.import_module("fe_contact.stepping.predictor")
     turn = Command(1e-3, 0.0, 0.0, math.radians(30.0))
     results = {}
     for reuse in (True, False):
