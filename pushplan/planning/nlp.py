@@ -36,6 +36,12 @@ ACTIVE_SET_MAX_ITER = 60
 a warm re-plan whose branch holds takes 6-25 on ``plan_rubber``'s closed loop; one that
 needs more (a branch far from the answer can crawl for hundreds) goes to the full MPCC,
 so a warm solve costs at most this many iterations more than the full one alone."""
+ACTIVE_SET_OPTIONS = {"ipopt.max_iter": ACTIVE_SET_MAX_ITER, "ipopt.tol": 1e-12}
+"""Added to the warm options for the active-set NLP.  Its ``tol`` is 1e-12: at 1e-10 it
+stops in the nearly flat valley of how the effort is shared between the steps 4.7e-8 m of
+commands (2.5e-7 m of planned poses) from where it ends at 1e-12, on ``plan_rubber``'s
+first re-plan, for 28 instead of 30 iterations; at 1e-12 its answers are within 6.2e-9 m
+of commands of the full MPCC's (``benchmarks/replan_phases.py --compare nlp``)."""
 BIACTIVE = 1e-6
 """A step of the active-set NLP is on both bounds of the complementarity when its other
 variable is within this of its bound (sigma in units of max_step, 1 - rho relative)."""
@@ -128,7 +134,7 @@ class ReducedPlanner:
         self._cold = _Program(self.law, spec, self.springback, SOLVER_OPTIONS)
         self._warm = _Program(self.law, spec, self.springback, SOLVER_OPTIONS | WARM_START_OPTIONS)  # its own ipopt
         self._smooth = _Program(self.law, spec, self.springback, SOLVER_OPTIONS | WARM_START_OPTIONS
-                                | {"ipopt.max_iter": ACTIVE_SET_MAX_ITER}, active_set=True)
+                                | ACTIVE_SET_OPTIONS, active_set=True)
         self._base = spec
         self.retarget(spec, initial_lag)
 
