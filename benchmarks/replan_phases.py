@@ -21,7 +21,13 @@ predictor's own answers move when the FE tolerances ``newton_tol`` and ``local_t
 the load average is recorded before and after.  Writes
 ``benchmarks/results/replan_phases.json``.
 
-    python benchmarks/replan_phases.py [--repeat 7]
+``--compare nlp`` compares instead the warm NLP solves (both with the rollout steps from the
+last rollout): the full warm MPCC (``ReducedPlanner.active_set = False``) and the warm
+start's active set first (:meth:`ReducedPlanner._solve_active_set`), each on its own
+requests as above, and their answers once more on the same requests (the full MPCC's,
+``answers_apart_on_the_same_requests``); writes ``replan_phases_nlp.json`` (``--name``: another).
+
+    python benchmarks/replan_phases.py [--repeat 7] [--compare fe|nlp] [--name NAME]
 """
 
 from __future__ import annotations
@@ -145,13 +151,16 @@ def answers_apart(text: str, runs: dict, ways: tuple[str, str], compare: str) ->
     """How far the ways' answers are apart (largest over the re-plans, and per re-plan),
     against how far the first way's move when the FE tolerances (``newton_tol``,
     ``local_tol``; ``compare = "fe"``) or ipopt's ``tol`` (``"nlp"``) go from 1e-10 to 1e-12
-    (one loop, untimed)."""
+    (one loop, untimed; ``"nlp"``: the full MPCC's from 1e-10 to 1e-12, the active-set
+    NLP's from 1e-12 to 1e-13; ``""``: the difference alone)."""
     a, b = runs[ways[0]][0], runs[ways[1]][0]
     out = {"commands_m": _apart([x["commands"] for x in a], [y["commands"] for y in b]),
            "poses_m": _apart([x["poses"] for x in a], [y["poses"] for y in b]),
            "per_replan_commands_m": [_apart([x["commands"]], [y["commands"]]) for x, y in zip(a, b, strict=True)],
            "per_replan_poses_m": [_apart([x["poses"]], [y["poses"]]) for x, y in zip(a, b, strict=True)],
            "plan_tolerance_m": tomllib.loads(text)["plan"]["tolerance"]}
+    if compare not in WAY_SETS:
+        return out
     if compare == "fe":
         ReducedPlanner.active_set = True
         tight = text.replace('local_method = "newton"', 'local_method = "newton"\nnewton_tol = 1e-12\nlocal_tol = 1e-12')
@@ -162,12 +171,12 @@ def answers_apart(text: str, runs: dict, ways: tuple[str, str], compare: str) ->
     for way in ways:
         ReducedPlanner.active_set = WAY_SETS["nlp"][way][1]
         loose = closed_loop_requests(text)[1]
-        tol = nlp.SOLVER_OPTIONS["ipopt.tol"]
-        nlp.SOLVER_OPTIONS["ipopt.tol"] = 1e-12
+        tols = nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"]
+        nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"] = 1e-12, 1e-13
         try:
-            out[f"{way}_commands_at_ipopt_tol_1e-10_and_1e-12_m"] = _apart(loose, closed_loop_requests(text)[1])
+            out[f"{way}_commands_at_ipopt_tol_tightened_m"] = _apart(loose, closed_loop_requests(text)[1])
         finally:
-            nlp.SOLVER_OPTIONS["ipopt.tol"] = tol
+            nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"] = tols
     return out
 
 
@@ -202,9 +211,13 @@ def main(argv=None) -> None:
     fe_contact.warm_up()
     text = SCENARIO.read_text()
     requests = {}
-    for w, (warm_steps, active_set) in ways.items():  # nlp: both ways on the first way's requests
-        ReducedPlanner.active_set = active_set if args.compare == "fe" else ways[WAYS[0]][1]
+    for w, (warm_steps, active_set) in ways.items():  # each way's own requests (see the docstring)
+        ReducedPlanner.active_set = active_set
         requests[w] = closed_loop_requests(text, warm_steps=warm_steps)[0]
+    same = {}
+    if args.compare == "nlp":  # both ways on the same requests (the first way's): their answers' difference
+        for w, way in ways.items():
+            same[w] = [_loop(text, requests[WAYS[0]], way, _Meter())]
     meter = _Meter()
     meter.wrap(ReducedPlanner, "solve", "nlp")
     meter.wrap(FeRollouts, "rollout", "fe_rollouts")
@@ -225,9 +238,13 @@ def main(argv=None) -> None:
         "each_way_repeatable": all(_apart([x["commands"] for x in loop], [y["commands"] for y in runs[w][0]]) == 0.0
                                    for w in WAYS for loop in runs[w]),
         "compare": args.compare, "answers_apart": answers_apart(text, runs, WAYS, args.compare),
+        "answers_apart_on_the_same_requests": answers_apart(text, same, WAYS, "") if same else None,
     }
     result["load_average_after"] = os.getloadavg()
     _print(result)
+    if same:
+        print("on the same requests: answers apart: commands {commands_m:.2e} m, poses {poses_m:.2e} m".format(
+            **result["answers_apart_on_the_same_requests"]))
     name = args.name or ("replan_phases" if args.compare == "fe" else "replan_phases_nlp")
     print(f"wrote {write_results(name, result)}")
 
