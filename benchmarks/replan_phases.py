@@ -21,7 +21,13 @@ predictor's own answers move when the FE tolerances ``newton_tol`` and ``local_t
 the load average is recorded before and after.  Writes
 ``benchmarks/results/replan_phases.json``.
 
-    python benchmarks/replan_phases.py [--repeat 7]
+``--compare nlp`` compares instead the warm NLP solves (both with the rollout steps from the
+last rollout): the full warm MPCC (``ReducedPlanner.active_set = False``) and the warm
+start's active set first (:meth:`ReducedPlanner._solve_active_set`), each on its own
+requests as above, and their answers once more on the same requests (the full MPCC's,
+``answers_apart_on_the_same_requests``); writes ``replan_phases_nlp.json`` (``--name``: another).
+
+    python benchmarks/replan_phases.py [--repeat 7] [--compare fe|nlp] [--name NAME]
 """
 
 from __future__ import annotations
@@ -37,11 +43,15 @@ import numpy as np
 import fe_contact
 from _common import write_results
 from serve_latency import SCENARIO, closed_loop_requests
+from pushplan.planning import nlp
 from pushplan.planning.nlp import ReducedPlanner
 from pushplan.planning.rollouts import FeRollouts
 from pushplan.service.worker import SessionState
 
-WAYS = ("from_predictor", "from_last_rollout")
+WAY_SETS = {"fe": {"from_predictor": (False, True), "from_last_rollout": (True, True)},
+            "nlp": {"full_mpcc": (True, False), "active_set": (True, True)}}
+"""The ways compared (``--compare``): (``FeRollouts.warm_steps``, ``ReducedPlanner.active_set``)."""
+WAYS = tuple(WAY_SETS["fe"])
 PHASES = ("nlp", "fe_rollouts", "advance")
 FE_PARTS = ("assembly", "tangent", "local", "solve")
 
@@ -91,10 +101,11 @@ class _Meter:
             setattr(cls, name, original)
 
 
-def _loop(text: str, requests: list[dict], warm: bool, meter: _Meter) -> list[dict]:
+def _loop(text: str, requests: list[dict], way: tuple[bool, bool], meter: _Meter) -> list[dict]:
     """The closed loop in this process; per re-plan its phases, commands and poses."""
+    ReducedPlanner.active_set = way[1]
     s = SessionState(text, SCENARIO.stem, verify=False)
-    s.session.coarse.warm_steps = warm
+    s.session.coarse.warm_steps = way[0]
     s.plan({})
     meter.take()
     rows = []
@@ -136,17 +147,37 @@ def _apart(a: list, b: list) -> float:
     return float(max(np.abs(np.subtract(x, y)).max() for x, y in zip(a, b, strict=True)))
 
 
-def answers_apart(text: str, runs: dict) -> dict:
-    """How far the ways' answers are apart, against how far the predictor's move when the FE
-    tolerances (``newton_tol``, ``local_tol``) go from 1e-10 to 1e-12 (one loop, untimed)."""
-    a, b = runs[WAYS[0]][0], runs[WAYS[1]][0]
-    tight = text.replace('local_method = "newton"', 'local_method = "newton"\nnewton_tol = 1e-12\nlocal_tol = 1e-12')
-    cold = closed_loop_requests(text, warm_steps=False)[1]
-    return {"commands_m": _apart([x["commands"] for x in a], [y["commands"] for y in b]),
-            "poses_m": _apart([x["poses"] for x in a], [y["poses"] for y in b]),
-            "predictor_commands_at_tolerances_1e-10_and_1e-12_m":
-                _apart(cold, closed_loop_requests(tight, warm_steps=False)[1]),
-            "plan_tolerance_m": tomllib.loads(text)["plan"]["tolerance"]}
+def answers_apart(text: str, runs: dict, ways: tuple[str, str], compare: str) -> dict:
+    """How far the ways' answers are apart (largest over the re-plans, and per re-plan),
+    against how far the first way's move when the FE tolerances (``newton_tol``,
+    ``local_tol``; ``compare = "fe"``) or ipopt's ``tol`` (``"nlp"``) go from 1e-10 to 1e-12
+    (one loop, untimed; ``"nlp"``: the full MPCC's from 1e-10 to 1e-12, the active-set
+    NLP's from 1e-12 to 1e-13; ``""``: the difference alone)."""
+    a, b = runs[ways[0]][0], runs[ways[1]][0]
+    out = {"commands_m": _apart([x["commands"] for x in a], [y["commands"] for y in b]),
+           "poses_m": _apart([x["poses"] for x in a], [y["poses"] for y in b]),
+           "per_replan_commands_m": [_apart([x["commands"]], [y["commands"]]) for x, y in zip(a, b, strict=True)],
+           "per_replan_poses_m": [_apart([x["poses"]], [y["poses"]]) for x, y in zip(a, b, strict=True)],
+           "plan_tolerance_m": tomllib.loads(text)["plan"]["tolerance"]}
+    if compare not in WAY_SETS:
+        return out
+    if compare == "fe":
+        ReducedPlanner.active_set = True
+        tight = text.replace('local_method = "newton"', 'local_method = "newton"\nnewton_tol = 1e-12\nlocal_tol = 1e-12')
+        cold = closed_loop_requests(text, warm_steps=False)[1]
+        out["predictor_commands_at_tolerances_1e-10_and_1e-12_m"] = _apart(
+            cold, closed_loop_requests(tight, warm_steps=False)[1])
+        return out
+    for way in ways:
+        ReducedPlanner.active_set = WAY_SETS["nlp"][way][1]
+        loose = closed_loop_requests(text)[1]
+        tols = nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"]
+        nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"] = 1e-12, 1e-13
+        try:
+            out[f"{way}_commands_at_ipopt_tol_tightened_m"] = _apart(loose, closed_loop_requests(text)[1])
+        finally:
+            nlp.SOLVER_OPTIONS["ipopt.tol"], nlp.ACTIVE_SET_OPTIONS["ipopt.tol"] = tols
+    return out
 
 
 def _print(result: dict) -> None:
@@ -159,20 +190,34 @@ def _print(result: dict) -> None:
               f"ipopt {r['nlp_iterations']:.0f} it")
     apart = result["answers_apart"]
     print("loop CPU median: " + ", ".join(f"{w} {v * ms:.1f} ms" for w, v in result["total_cpu_median_s"].items())
-          + f"; answers apart: commands {apart['commands_m']:.2e} m, poses {apart['poses_m']:.2e} m (the "
-          f"predictor's at FE tolerances 1e-10 and 1e-12: {apart['predictor_commands_at_tolerances_1e-10_and_1e-12_m']:.2e}"
-          f" m); load average {result['load_average_before'][0]:.1f} -> {result['load_average_after'][0]:.1f} on "
+          + f"; answers apart: commands {apart['commands_m']:.2e} m, poses {apart['poses_m']:.2e} m ("
+          + ", ".join(f"{k} {v:.2e}" for k, v in apart.items() if "tol" in k and "plan" not in k)
+          + f"); load average {result['load_average_before'][0]:.1f} -> {result['load_average_after'][0]:.1f} on "
           f"{result['cpus']} cpus")
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=7)
+    parser.add_argument("--compare", choices=tuple(WAY_SETS), default="fe",
+                        help="fe: rollout steps from the predictor / the last rollout; nlp: the full warm "
+                             "MPCC / the active-set NLP first (same requests, main's)")
+    parser.add_argument("--name", default=None, help="results file name (default replan_phases[_nlp])")
     args = parser.parse_args(argv)
+    ways = WAY_SETS[args.compare]
+    global WAYS
+    WAYS = tuple(ways)
     load_before = os.getloadavg()
     fe_contact.warm_up()
     text = SCENARIO.read_text()
-    requests = {w: closed_loop_requests(text, warm_steps=w == "from_last_rollout")[0] for w in WAYS}
+    requests = {}
+    for w, (warm_steps, active_set) in ways.items():  # each way's own requests (see the docstring)
+        ReducedPlanner.active_set = active_set
+        requests[w] = closed_loop_requests(text, warm_steps=warm_steps)[0]
+    same = {}
+    if args.compare == "nlp":  # both ways on the same requests (the first way's): their answers' difference
+        for w, way in ways.items():
+            same[w] = [_loop(text, requests[WAYS[0]], way, _Meter())]
     meter = _Meter()
     meter.wrap(ReducedPlanner, "solve", "nlp")
     meter.wrap(FeRollouts, "rollout", "fe_rollouts")
@@ -181,9 +226,10 @@ def main(argv=None) -> None:
     try:
         for _ in range(args.repeat):
             for way in WAYS:
-                runs[way].append(_loop(text, requests[way], way == "from_last_rollout", meter))
+                runs[way].append(_loop(text, requests[way], ways[way], meter))
     finally:
         meter.restore()
+        ReducedPlanner.active_set = True
     result = {
         "load_average_before": load_before, "cpus": os.cpu_count(), "repeat": args.repeat,
         "replans_per_loop": len(requests[WAYS[0]]), "by_pushes_left": _by_pushes_left(runs),
@@ -191,11 +237,16 @@ def main(argv=None) -> None:
                                for w in WAYS},
         "each_way_repeatable": all(_apart([x["commands"] for x in loop], [y["commands"] for y in runs[w][0]]) == 0.0
                                    for w in WAYS for loop in runs[w]),
-        "answers_apart": answers_apart(text, runs),
+        "compare": args.compare, "answers_apart": answers_apart(text, runs, WAYS, args.compare),
+        "answers_apart_on_the_same_requests": answers_apart(text, same, WAYS, "") if same else None,
     }
     result["load_average_after"] = os.getloadavg()
     _print(result)
-    print(f"wrote {write_results('replan_phases', result)}")
+    if same:
+        print("on the same requests: answers apart: commands {commands_m:.2e} m, poses {poses_m:.2e} m".format(
+            **result["answers_apart_on_the_same_requests"]))
+    name = args.name or ("replan_phases" if args.compare == "fe" else "replan_phases_nlp")
+    print(f"wrote {write_results(name, result)}")
 
 
 if __name__ == "__main__":

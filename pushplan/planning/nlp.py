@@ -9,11 +9,19 @@ K steps and re-solved with new parameter values: the ``modifier`` (the FE-minus-
 mismatch of the correction loop) and, for a re-plan of the last ``m <= K`` steps
 (:meth:`ReducedPlanner.retarget`), the target, the tolerances, the start lag and which
 steps are active (the last ``K - m`` are held still: zero command).
+
+A warm solve (from an earlier solution) first solves the smooth NLP of the warm start's
+branch of the complementarity (each step sliding, ``rho = 1``, or sticking, ``sigma = 0``)
+and keeps its answer only where it is a solution of the full problem that no step wants to
+leave; otherwise it solves the full MPCC from the same start
+(:meth:`ReducedPlanner._solve_active_set`): the MPCC's interior point crawls (89 ipopt
+iterations on ``plan_rubber``'s first re-plan, 30 for the smooth NLP).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import signal
 import threading
@@ -30,6 +38,25 @@ from .target import naive_commands
 COMPLEMENTARITY_EPS = 1e-8
 """Relaxation of ``sigma_k (1 - rho_k) = 0`` (slip, in units of max_step, times the
 distance of the force from the limit surface, relative)."""
+ACTIVE_SET_MAX_ITER = 60
+"""ipopt's iteration cap on the active-set NLP (:meth:`ReducedPlanner._solve_active_set`):
+a warm re-plan whose branch holds takes 6-25 on ``plan_rubber``'s closed loop; one that
+needs more (a branch far from the answer can crawl for hundreds) goes to the full MPCC,
+so a warm solve costs at most this many iterations more than the full one alone."""
+ACTIVE_SET_OPTIONS = {"ipopt.max_iter": ACTIVE_SET_MAX_ITER, "ipopt.tol": 1e-12}
+"""Added to the warm options for the active-set NLP.  Its ``tol`` is 1e-12: at 1e-10 it
+stops in the nearly flat valley of how the effort is shared between the steps 4.7e-8 m of
+commands (2.5e-7 m of planned poses) from where it ends at 1e-12, on ``plan_rubber``'s
+first re-plan, for 28 instead of 30 iterations; at 1e-12 its answers are within 6.2e-9 m
+of commands of the full MPCC's (``benchmarks/replan_phases.py --compare nlp``)."""
+BIACTIVE = 1e-6
+"""A step of the active-set NLP is on both bounds of the complementarity when its other
+variable is within this of its bound (sigma in units of max_step, 1 - rho relative)."""
+MULTIPLIER_TOL = 1e-6
+"""How far a bound multiplier of the active-set NLP may have the wrong sign (objective
+units, the objective being O(1) at the target's tolerance) and still count as zero
+(:meth:`ReducedPlanner._solve_active_set`); inactive bounds' multipliers are ~4e-8 at
+ipopt's ``tol`` 1e-10, a step that wants to switch has ~1e4."""
 
 SOLVER_OPTIONS = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": 3000,
                   "ipopt.tol": 1e-10, "ipopt.mu_strategy": "adaptive", "ipopt.bound_push": 1e-8,
@@ -58,7 +85,11 @@ class NlpSolution:
     """One solve of the planning NLP.
 
     ``commands`` (K, 3) ``(dx, dy, dtheta)``; ``lower`` / ``upper`` (K + 1, 3) reduced-model
-    poses (without the modifier); ``variables`` the raw iterate (warm start).
+    poses (without the modifier); ``variables`` the raw iterate (warm start).  ``path``:
+    ``"mpcc"`` (the full problem), ``"active_set"`` (the smooth NLP of the warm start's
+    branch, :meth:`ReducedPlanner._solve_active_set`) or ``"mpcc_after_active_set_failed"`` /
+    ``"..._switch"`` (the full problem after it; ``iterations`` and ``wall_time`` count both
+    runs); ``bound_multipliers`` (2, K) the active-set NLP's of ``rho <= 1`` and ``sigma >= 0``.
     """
 
     commands: np.ndarray
@@ -70,6 +101,8 @@ class NlpSolution:
     return_status: str
     wall_time: float
     variables: dict = field(repr=False)
+    bound_multipliers: np.ndarray | None = field(default=None, repr=False)
+    path: str = "mpcc"
 
 
 class ReducedPlanner:
@@ -93,10 +126,16 @@ class ReducedPlanner:
     variables are pinned by a term ``|a - e_1|^2 + rho^2 + sigma^2`` of their own (an
     active step's problem is the one of a horizon of m).
 
+    A warm :meth:`solve` tries the warm start's active set first (:attr:`active_set`,
+    :meth:`_solve_active_set`); ``NlpSolution.path`` says which problem answered.
+
     ``initial_lag`` (3,) ``upper - lower`` at the start (m, m, rad): zero from the pressed
     block at rest; a re-plan starts from the loaded state the executed pushes left, whose
     drive force is already on (or near) the limit surface.
     """
+
+    active_set: bool = True
+    """A warm solve tries the warm start's active set first (:meth:`_solve_active_set`)."""
 
     def __init__(self, params: PushParameters, spec: PlanSpec, springback: Springback | None = None,
                  initial_lag=(0.0, 0.0, 0.0)):
@@ -108,6 +147,8 @@ class ReducedPlanner:
         self.springback = springback if spec.target_state == "rest" else None
         self._cold = _Program(self.law, spec, self.springback, SOLVER_OPTIONS)
         self._warm = _Program(self.law, spec, self.springback, SOLVER_OPTIONS | WARM_START_OPTIONS)  # its own ipopt
+        self._smooth = _Program(self.law, spec, self.springback, SOLVER_OPTIONS | WARM_START_OPTIONS
+                                | ACTIVE_SET_OPTIONS, active_set=True)
         self._base = spec
         self.retarget(spec, initial_lag)
 
@@ -168,9 +209,50 @@ class ReducedPlanner:
         values = {"target": list(spec.target), "modifier": [float(v) for v in modifier],
                   "lag0": [float(v) for v in self.initial_lag], "active": [1.0] * m + [0.0] * (self.horizon - m),
                   "weights": [spec.tolerance**-2, spec.yaw_tolerance**-2, spec.effort_weight / m]}
-        guess = _padded(warm.variables, self.horizon, m) if warm is not None else self.initial_guess()
-        program = self._warm if warm is not None else self._cold
-        return program.solve(values, guess, m)
+        if warm is None:
+            return self._cold.solve(values, self.initial_guess(), m)
+        guess = _padded(warm.variables, self.horizon, m)
+        if not self.active_set:
+            return self._warm.solve(values, guess, m)
+        smooth = self._solve_active_set(values, guess, m)
+        if smooth.path == "active_set":
+            return smooth
+        full = self._warm.solve(values, guess, m)
+        return dataclasses.replace(full, iterations=full.iterations + smooth.iterations,
+                                   wall_time=full.wall_time + smooth.wall_time, path=smooth.path)
+
+    def _solve_active_set(self, values: dict, guess: dict, m: int) -> NlpSolution:
+        """The smooth NLP of the warm start's branch of the complementarity, per step: a
+        step that slides (``sigma_k > 1 - rho_k`` in ``guess``) keeps ``rho_k = 1``,
+        ``sigma_k >= 0``; one that sticks keeps ``sigma_k = 0``, ``0 <= rho_k <= 1``.
+
+        Its answer (``path = "active_set"``) is kept when it is a solution of the MPCC
+        ``0 <= sigma _|_ 1 - rho >= 0`` that no step wants to leave: ipopt converged on the
+        smooth NLP (its KKT conditions hold, the complementarity by construction); no
+        sticking step wants to slip (the multiplier of its ``sigma >= 0`` is ``<=
+        MULTIPLIER_TOL``, CasADi's sign: positive = the upper bound holds, so the objective
+        would raise sigma); and a sliding step that stopped (``sigma <= BIACTIVE``, on both
+        bounds) does not want off the limit surface (its ``rho <= 1``'s multiplier is ``>=
+        -MULTIPLIER_TOL``).  A sliding step with ``sigma > BIACTIVE`` may have a negative
+        ``rho <= 1`` multiplier: lowering rho there means stopping first, not a local move,
+        and the full solve's relaxation (:data:`COMPLEMENTARITY_EPS`) only lets its rho sit at
+        ``1 - eps / sigma``, so the two answers differ by that relaxation.  The test on the
+        sticking steps is stricter than strong stationarity (which asks signs only of steps
+        on both bounds): a stuck step whose objective wants slip sends the re-plan to the
+        full MPCC, whose local answer may slide there.  Otherwise ``path`` names the reason
+        (``"mpcc_after_active_set_failed"`` / ``"mpcc_after_active_set_switch"``) and
+        :meth:`solve` solves the full MPCC from the same guess: at most two ipopt runs."""
+        slides = (np.asarray(guess["sigma"], float) > 1.0 - np.asarray(guess["rho"], float)).ravel()
+        fixed = dict(guess, rho=np.where(slides, 1.0, guess["rho"]), sigma=np.where(slides, guess["sigma"], 0.0))
+        bounds = {"rho_lo": np.where(slides, 1.0, 0.0).tolist(), "sigma_hi": np.where(slides, 1e20, 0.0).tolist()}  # >= 1e19: none
+        sol = self._smooth.solve(values | bounds, fixed, m)
+        if not sol.success:
+            return dataclasses.replace(sol, path="mpcc_after_active_set_failed")
+        lam_rho, lam_sigma = sol.bound_multipliers
+        sigma = sol.variables["sigma"].ravel()
+        lowers_rho = slides & (sigma <= BIACTIVE) & (lam_rho < -MULTIPLIER_TOL)
+        switch = lowers_rho | (~slides & (lam_sigma > MULTIPLIER_TOL))
+        return dataclasses.replace(sol, path="mpcc_after_active_set_switch" if switch.any() else "active_set")
 
 
 class _Program:
@@ -178,7 +260,8 @@ class _Program:
     transcribed in its own ``Opti`` with its own ipopt ``options`` (:data:`SOLVER_OPTIONS`,
     :data:`WARM_START_OPTIONS`)."""
 
-    def __init__(self, law, spec: PlanSpec, springback: Springback | None, options: dict):
+    def __init__(self, law, spec: PlanSpec, springback: Springback | None, options: dict,
+                 active_set: bool = False):
         import casadi as ca
 
         K, d = spec.steps, (3 if spec.yaw_targeted else 2)
@@ -187,9 +270,16 @@ class _Program:
         par = {name: opti.parameter(n) for name, n in
                (("target", 3), ("modifier", 3), ("lag0", 3), ("active", K), ("weights", 3))}
         lower, upper, cmds, effort, pinned = _chain(ca, opti, law, (A, rho, sigma), par, spec)
-        opti.subject_to(opti.bounded(0, rho, 1))
-        opti.subject_to(sigma >= 0)
-        opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
+        self.fixed = ()
+        if active_set:  # the complementarity's branch per step as bounds: rho_lo <= rho <= 1, 0 <= sigma <= sigma_hi
+            par["rho_lo"], par["sigma_hi"] = opti.parameter(1, K), opti.parameter(1, K)
+            self.fixed = (opti.bounded(par["rho_lo"], rho, 1), opti.bounded(0, sigma, par["sigma_hi"]))
+            for c in self.fixed:
+                opti.subject_to(c)
+        else:
+            opti.subject_to(opti.bounded(0, rho, 1))
+            opti.subject_to(sigma >= 0)
+            opti.subject_to(sigma * (1 - rho) <= COMPLEMENTARITY_EPS)
         final = lower[-1] + par["modifier"]
         if springback is not None:
             final = final + ca.DM(springback.fractions) * (upper[-1] - lower[-1])
@@ -202,7 +292,8 @@ class _Program:
         opti.solver("ipopt", options)
         self.opti, self.par, self.variables, self.K, self.d = opti, par, {"A": A, "rho": rho, "sigma": sigma}, K, d
         # every output in one vector: one evaluation per solve (column-major blocks)
-        self.outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma)
+        self.outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma,
+                                 *(opti.dual(c) for c in self.fixed))
 
     def solve(self, values: dict, guess: dict, m: int) -> NlpSolution:
         """Solve with parameter ``values`` from ``guess`` (variables by name), ``m`` active steps."""
@@ -220,7 +311,7 @@ class _Program:
         wall = time.perf_counter() - t0
         stats = opti.stats()
         out, K, d = np.asarray(sol.value(self.outputs), float).ravel(), self.K, self.d
-        parts = np.split(out, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K]))
+        parts = np.split(out, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K, K]))
         return NlpSolution(
             commands=parts[0].reshape(K, 3)[:m].copy(),
             lower=parts[1].reshape(K + 1, 3)[:m + 1].copy(),
@@ -232,7 +323,17 @@ class _Program:
             wall_time=wall,
             variables={"A": parts[4].reshape(K, d).T.copy(), "rho": parts[5][None, :].copy(),
                        "sigma": parts[6][None, :].copy()},
+            bound_multipliers=_net_multipliers(parts[7], K) if self.fixed else None,
         )
+
+
+def _net_multipliers(duals: np.ndarray, K: int) -> np.ndarray:
+    """(2, K) multipliers of the active-set NLP's ``rho_lo <= rho <= 1`` and ``0 <= sigma <=
+    sigma_hi`` in CasADi's sign (positive: the upper bound holds the variable).  ``Opti``
+    splits a two-sided bound with a parameter into its two sides, dual (1, 2K): the
+    lower side's multipliers then the upper side's, each >= 0."""
+    d = duals.reshape(2, -1)
+    return d[:, K:] - d[:, :K] if d.shape[1] == 2 * K else d
 
 
 def _chain(ca, opti, law, variables, par, spec: PlanSpec):
