@@ -88,12 +88,12 @@ SETTLE_FORCE = 1e-9
 """Rest: the plate's force and every node's out-of-balance force at most this fraction of the force scale
 (the weight; the loaded normal force for a block without weight)."""
 SETTLE_MOTION = 1e-9
+"""Rest: one more step moves no node by more than this fraction of the block's largest dimension."""
 LET_GO_FORCE = 1e-6
 """A bonded pad that still carries an in-plane force when put down lets go (:class:`LetGo`) once its vertical
 force is at most this fraction of the weight: regula falsi on the plate's height cannot bring it below the Newton
 loop's resolution (measured: stalled at 1.1e-9 W with 0.32 W in the plane, 4 x 3 x 2), and letting go of the rest
 moves the block by about ``LET_GO_FORCE W H / (E A)`` (measured against 1e-9: tests/test_footprint.py)."""
-"""Rest: one more step moves no node by more than this fraction of the block's largest dimension."""
 
 
 @dataclass(frozen=True)
