@@ -230,6 +230,20 @@ def test_kill_9_during_a_sweep_leaves_complete_case_folders_and_no_worker(tmp_pa
     assert {case_state(last / "cases" / n, new_keys[n]) for n in old_cases} == {"new"}
 
 
+def _flock_held(path) -> bool:
+    """Whether another process holds ``flock`` on ``path`` (tried without blocking)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # closing drops a lock this process took
+    return False
+
+
 def test_second_run_into_a_locked_out_refuses(tmp_path):
     (tmp_path / "s.toml").write_text(SCENARIO.format(repeat=40))
     out = tmp_path / "out"
@@ -239,8 +253,20 @@ def test_second_run_into_a_locked_out_refuses(tmp_path):
     t0 = time.monotonic()
     while not lock.exists() and time.monotonic() - t0 < 60:
         time.sleep(0.02)
-    second = subprocess.run(cli("simulate", tmp_path / "s.toml", "--out", out, "--quiet"), env=ENV,
-                            capture_output=True, text=True, timeout=120)
+    # the first run stopped (SIGSTOP) once it holds the folder's lock, so the second meets it
+    # however fast the first would finish
+    while True:
+        first.send_signal(signal.SIGSTOP)
+        if _flock_held(lock):
+            break
+        first.send_signal(signal.SIGCONT)
+        assert first.poll() is None and time.monotonic() - t0 < 60, "the first run never held its lock"
+        time.sleep(0.01)
+    try:
+        second = subprocess.run(cli("simulate", tmp_path / "s.toml", "--out", out, "--quiet"), env=ENV,
+                                capture_output=True, text=True, timeout=120)
+    finally:
+        first.send_signal(signal.SIGCONT)
     assert first.wait(timeout=120) == 0, first.stderr.read()
     assert second.returncode == 2
     lines = second.stderr.strip().splitlines()
