@@ -66,8 +66,8 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
     upper_c = face_centroid_displacement(U[mesh.upper], model.upper_area)
     lower_c = face_centroid_displacement(U[lower], model.lower_area)
     X_lower = mesh.nodes[lower]
-    f_int = eq.internal_force
-    upper_force, total_contact, eq_err, spring_f = _balance(model, eq, contact_world, loading, extra)
+    f_int, pad_force = eq.internal_force, _pad_forces(model, eq)
+    upper_force, total_contact, eq_err, spring_f = _balance(model, eq, contact_world, pad_force, loading, extra)
     logs = eq.iterations
     return StepReport(
         status=eq.status,
@@ -108,7 +108,7 @@ def measure(model: Model, state: State, command: Command, eq: Equilibrium, t0: f
         plate=extra.pop("plate", np.array(state.plate)),
         weight=model.weight,
         regularisation_force=float(np.linalg.norm(spring_f)),
-        pad_reaction=eq.reaction[n_lower:], pad_force=_pad_forces(model, eq),
+        pad_reaction=eq.reaction[n_lower:], pad_force=pad_force,
     )
 
 
@@ -122,18 +122,17 @@ def _pad_forces(model: Model, eq: Equilibrium) -> np.ndarray:
     return eq.internal_force[model.upper_dofs].reshape(-1, 3)
 
 
-def _balance(model: Model, eq: Equilibrium, contact_world: np.ndarray, loading: Loading, extra: dict):
-    """The gripper's force on the block (3,), N (the drive's reaction, or a
-    frictional pad's contact forces; ``extra["upper_force"]`` if given), the
-    floor's total force (3,), N, the relative equilibrium error of the module
-    docstring and the regularising springs' force (n_dofs,), N.  Sets
-    ``extra["gripper_force"]`` for a frictional pad (its plate wrench) unless given."""
-    U, n_lower, f_int = eq.displacement, model.n_lower, eq.internal_force
-    upper_force = f_int[model.upper_dofs].reshape(-1, 3).sum(axis=0) if f_int is not None else np.zeros(3)
+def _balance(model: Model, eq: Equilibrium, contact_world: np.ndarray, pad_force: np.ndarray, loading: Loading,
+             extra: dict):
+    """The gripper's force on the block (3,), N (the sum of ``pad_force``, :func:`_pad_forces`;
+    ``extra["upper_force"]`` if given), the floor's total force (3,), N, the relative
+    equilibrium error of the module docstring and the regularising springs' force
+    (n_dofs,), N.  Sets ``extra["gripper_force"]`` for a frictional pad (its plate
+    wrench) unless given."""
+    U = eq.displacement
+    upper_force = pad_force.sum(axis=0)
     if model.pad is not None:
-        pad_world = model.contacts.to_world(eq.reaction)[n_lower:]
-        upper_force = pad_world.sum(axis=0)
-        extra.setdefault("gripper_force", plate_wrench(model, U, pad_world))
+        extra.setdefault("gripper_force", plate_wrench(model, U, pad_force))
     upper_force = extra.pop("upper_force", upper_force)
     total_contact = contact_world.sum(axis=0)
     force_scale = max(np.linalg.norm(upper_force), np.linalg.norm(total_contact), eq.force_scale)
