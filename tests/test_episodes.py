@@ -14,7 +14,8 @@ from fe_contact import Command, Friction, Material, Model, SolverOptions, State,
 from pushplan.config import parse_scenario
 from pushplan.config.plan import parse_plan
 from pushplan.errors import InputError
-from pushplan.identify.episodes import episode_spec, plate_over, regrasp, response_gain
+from pushplan.identify.episodes import (MIN_PROGRESS, episode_spec, plate_over, regrasp, response_gain,
+                                       tolerance_units)
 
 POSE = np.array([1.3e-3, -0.4e-3, math.radians(2.0)])
 LIFT = 3e-6  # m: the moved block floats this high (a frictional pad touches its top)
@@ -266,7 +267,8 @@ def test_an_episode_that_ends_farther_stops_the_loop(monkeypatch):
     spec, eps, aims, stopped = scripted_episodes(monkeypatch, response, 0.5 * np.array([3e-3, 1e-3, 0.0]))
     assert len(eps) == 2 and len(calls) == 1
     assert eps[1].error["position"] > eps[0].error["position"]
-    assert "episode 2 ended" in stopped and "farther than the best" in stopped
+    assert stopped.rule == "progress" and stopped.episode == 2 and stopped.removed < 0
+    assert "episode 2 ended" in stopped.message and "farther than it started" in stopped.message
 
 
 def test_an_episode_beyond_reach_says_nothing_of_the_gain(monkeypatch):
@@ -283,3 +285,67 @@ def test_an_episode_beyond_reach_says_nothing_of_the_gain(monkeypatch):
     assert np.hypot(*aims[0][:2]) > reach  # 0.7 of the target left over 0.3
     assert not stopped and eps[-1].error["within_tolerance"] and len(eps) == 3
     assert np.allclose(aims[1][:2], (np.array(spec.target[:2]) - eps[1].rest[:2]) / 0.3, rtol=1e-9)
+
+
+def test_an_episode_that_removes_too_little_of_the_error_stops_the_loop(monkeypatch):
+    """The trial's slipping pad: each episode ended about as far off as the one before and the
+    loop ran all its episodes (559 s).  Here the first episode rests 0.3x as far as aimed and the
+    later ones, their aims longer, 0.05x (the pad slides): the second removes 83 % less than it
+    aimed at, under :data:`MIN_PROGRESS` of what was left, and the loop stops there, saying why."""
+    calls = []
+
+    def response(aimed):
+        calls.append(aimed)
+        return 0.05 * aimed
+
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, response, 0.3 * np.array([3e-3, 1e-3, 0.0]))
+    assert len(eps) == 2 and len(calls) == 1
+    e1, e2 = (tolerance_units(e.rest, spec) for e in eps)
+    assert e2 < e1 and stopped.rule == "progress" and stopped.episode == 2
+    assert stopped.removed == pytest.approx(1 - e2 / e1) and 0 < stopped.removed < MIN_PROGRESS
+    assert stopped.to_dict()["min_progress"] == MIN_PROGRESS
+
+
+def test_a_response_gain_that_cannot_close_stops_before_the_next_episode(monkeypatch):
+    """A first episode whose rest moved 0.02x what it aimed at (below MIN_PROGRESS x the gain
+    bound 0.1): the next, aiming 10x what is left at most, would move the block 0.2x of it;
+    the loop stops without running it."""
+    calls = []
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, calls.append, 0.02 * np.array([3e-3, 1e-3, 0.0]))
+    assert len(eps) == 1 and not calls
+    assert stopped.rule == "gain" and stopped.episode == 1 and stopped.gain == pytest.approx(0.02)
+    assert "0.02x" in stopped.message
+
+
+@pytest.mark.parametrize("first, later, episodes", [(0.37, 0.37, 2), (0.3, 0.2, 4), (0.9, 0.9, 2)])
+def test_episodes_that_halve_the_error_go_on(monkeypatch, first, later, episodes):
+    """A truth whose later episodes respond within half of the measured gain is not stopped:
+    0.2 where 0.3 was measured removes 2/3 of what is left, and the loop closes."""
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, lambda a: later * a, first * np.array([3e-3, 1e-3, 0.0]))
+    assert stopped is None and eps[-1].error["within_tolerance"] and len(eps) == episodes
+
+
+def test_a_pad_that_slides_stops_the_closed_loop_as_a_failure(tmp_path):
+    """End to end on a tiny block: a pad of 0.02 on a 0.6 / 0.25 floor slides, the block
+    hardly moves (the plan says the target is beyond reach: no gain is measured), and the
+    loop stops after the second episode, which removed nothing of the error, instead of
+    running its 6 episodes: exit 3, the rule and its numbers in ``closed_loop.json``."""
+    import json
+
+    from pushplan.cli import main
+
+    plan = REST_PLAN.replace("steps = 4", "steps = 1").replace("[3, 2, 2]", "[2, 2, 1]").replace(
+        "episodes = 3", "episodes = 6")
+    (tmp_path / "m.toml").write_text('name = "m"' + BLOCK.format(elements=[2, 2, 1], young=2e6, mu_x=0.6,
+                                                                  mu_y=0.25, pad=0.02) + plan)
+    (tmp_path / "t.toml").write_text('name = "t"' + BLOCK.format(elements=[2, 2, 1], young=2.4e6, mu_x=0.75,
+                                                                  mu_y=0.3125, pad=0.02))
+    code = main(["closed-loop", str(tmp_path / "m.toml"), "--truth", str(tmp_path / "t.toml"), "--out",
+                 str(tmp_path / "cl"), "--quiet", "--no-recording"])
+    doc = json.loads((tmp_path / "cl" / "closed_loop.json").read_text())
+    stop = doc["closed_loop"]["stop"]
+    print(stop, [e["rest_error"]["position"] for e in doc["episodes"]])
+    assert code == 3 and not doc["closed_loop"]["final_error"]["within_tolerance"]
+    assert stop["rule"] == "progress" and stop["episode"] == 2 and len(doc["episodes"]) == 2
+    assert abs(stop["removed_fraction"]) < 1e-3 and stop["min_progress"] == MIN_PROGRESS
+    assert doc["closed_loop"]["stopped"].startswith("episode 2 ended")

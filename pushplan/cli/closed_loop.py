@@ -71,7 +71,7 @@ def cmd_closed_loop(args) -> int:
         if not args.no_recording:
             _recording(tx.path / "recording.rrd", scenario, result.runs, spec)
     _print_summary(scenario, truth, spec, doc, tx.out)
-    return 0 if result.within_tolerance else EXIT_SOLVER_FAILURE
+    return 0 if result.within_tolerance and result.stopped is None else EXIT_SOLVER_FAILURE
 
 
 def _print_summary(scenario, truth, spec, doc: dict, out) -> None:

@@ -38,7 +38,8 @@ from ..planning.replan import remaining_spec, replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
-from .episodes import Episode, episode_spec, regrasp, relative_summary, response_gain
+from .episodes import (Episode, episode_spec, gain_stop, progress_stop, regrasp, relative_summary, response_gain,
+                       secant_gain)
 from .fit import Identification, identify
 from .loop_result import ClosedLoopResult, Iteration, RobustReplan, TruthRuns, error_json, friction_of
 from .noise import NoiseModel
@@ -320,20 +321,27 @@ def _episodes(current, spec, truth, iterations, release, press, opts: LoopOption
     """The first episode's release and, while its rest pose is outside the tolerance,
     further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most, each aiming at
     what is left over the truth's response gain of the one before
-    (:func:`~.episodes.response_gain`; of the last one in reach of its steps); an episode
-    that ends farther from the target than the best before it stops the loop (a failure,
-    reported).  Returns the model planned
-    with last, the episodes, the last episode's truth and why the loop stopped early ("")."""
+    (:func:`~.episodes.response_gain`; of the last one in reach of its steps).  The loop
+    stops (a failure, reported) when an episode after the first removes less than
+    :data:`~.episodes.MIN_PROGRESS` of the error it started from
+    (:func:`~.episodes.progress_stop`), or before an episode that the measured gain says
+    cannot (:func:`~.episodes.gain_stop`).  Returns the model planned with last, the
+    episodes, the last episode's truth and why the loop stopped early (a
+    :class:`~.episodes.Stop`, or None)."""
     truth.let_go(release)
     episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
                         error_json(truth.rest, spec), 0, time.perf_counter() - t_start)]
-    stopped, gain = "", np.ones(3)
+    stop, gain = None, np.ones(3)
     while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
         t0, index, last = time.perf_counter(), len(episodes) + 1, episodes[-1]
         origin = last.rest
         if not any(it.plan_status == "infeasible" for it in last.iterations):
             # an episode that aimed beyond reach went as far as the steps allow: says nothing of the gain
+            raw = secant_gain(last.rest - last.origin, last.aimed)
             gain = response_gain(last.rest - last.origin, last.aimed)
+            stop = gain_stop(raw, last.rest, last.index, spec)
+            if stop is not None:
+                break
         spec_e = episode_spec(spec, origin, gain)
         opts.say(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
         truth = truth.regrasped(press)
@@ -344,14 +352,12 @@ def _episodes(current, spec, truth, iterations, release, press, opts: LoopOption
         episodes.append(Episode(index, origin, np.array(spec_e.target), _world(its, origin), origin + truth.pose,
                                 world, error_json(world, spec), 1 if truth.model.pad is None else 0,
                                 time.perf_counter() - t0))
-        best = min(e.error["position"] for e in episodes[:-1])
-        if episodes[-1].error["position"] > best:
-            stopped = (f"episode {index} ended {episodes[-1].error['position'] * 1e6:.3f} um off, farther than the "
-                       f"best episode's {best * 1e6:.3f} um: the loop stops (the truth does not respond as its "
-                       "gain predicted)")
-            opts.say(stopped)
+        stop = progress_stop(origin, world, index, spec)
+        if stop is not None:
             break
-    return current, episodes, truth, stopped
+    if stop is not None:
+        opts.say(stop.message)
+    return current, episodes, truth, stop
 
 
 def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_identify: bool = False,
@@ -381,7 +387,7 @@ def closed_loop(model_sc: Scenario, truth_sc: Scenario, spec: PlanSpec, use_iden
     open_final = _final(open_truth, spec, release)
     truth = first_truth = _new_truth(truth_sc, press)
     current, iterations = _pushes(model_sc, spec, truth, first, opts)
-    episodes, stopped = [], ""
+    episodes, stopped = [], None
     if spec.target_state == "rest":
         current, episodes, truth, stopped = _episodes(current, spec, truth, iterations, release, press, opts,
                                                       t_start)

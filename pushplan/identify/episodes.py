@@ -34,6 +34,7 @@ import numpy as np
 from fe_contact import Command, Model, State, planar_yaw
 
 from ..config.plan import PlanSpec
+from ..planning.target import pose_error
 
 
 def plate_over(model: Model, state: State) -> tuple[np.ndarray, float]:
@@ -87,27 +88,102 @@ NO_AIM = 1e-12
 """An aimed displacement (m, or rad) below which an episode says nothing about the gain."""
 
 
-def response_gain(observed: np.ndarray | None, aimed: np.ndarray | None) -> np.ndarray:
-    """The truth's rest response to what the last episode aimed at (3,): the secant gain
+def secant_gain(observed: np.ndarray, aimed: np.ndarray) -> np.ndarray:
+    """The truth's rest response to what an episode aimed at (3,), unclipped: the secant gain
 
         g_xy = (r . a) / (a . a)   over (x, y),    g_yaw = r_yaw / a_yaw,
 
     ``r`` the rest displacement the truth made over that episode, ``a`` the one its plan
-    aimed at (each (3,), m, m, rad), clipped to :data:`GAIN_BOUNDS`; ones before any
-    episode (or where nothing was aimed).  The next episode aims at ``left / g``: a truth
-    that moves 0.4x what the model predicts is asked for 2.5x (a gain, not an additive
-    offset carried from one re-grasp to the next, which overshoots once the block is
-    close: the offset does not shrink with what is left)."""
-    g = np.ones(3)
-    if observed is None:
-        return g
+    aimed at (each (3,), m, m, rad); NaN where nothing was aimed (below :data:`NO_AIM`)."""
     r, a = np.asarray(observed, float), np.asarray(aimed, float)
+    g = np.full(3, np.nan)
     aa = float(a[0] ** 2 + a[1] ** 2)
     if aa > NO_AIM**2:
         g[:2] = float(r[0] * a[0] + r[1] * a[1]) / aa
     if abs(a[2]) > NO_AIM:
         g[2] = r[2] / a[2]
-    return np.clip(g, *GAIN_BOUNDS)
+    return g
+
+
+def response_gain(observed: np.ndarray | None, aimed: np.ndarray | None) -> np.ndarray:
+    """The gain (3,) the next episode divides what is left by: :func:`secant_gain` clipped
+    to :data:`GAIN_BOUNDS`; ones before any episode (or where nothing was aimed).  The next
+    episode aims at ``left / g``: a truth that moves 0.4x what the model predicts is asked
+    for 2.5x (a gain, not an additive offset carried from one re-grasp to the next, which
+    overshoots once the block is close: the offset does not shrink with what is left)."""
+    if observed is None:
+        return np.ones(3)
+    g = secant_gain(observed, aimed)
+    return np.clip(np.where(np.isnan(g), 1.0, g), *GAIN_BOUNDS)
+
+
+MIN_PROGRESS = 0.5
+"""The fraction of the rest error (in units of the tolerances, :func:`tolerance_units`) an
+episode after the first must remove, else the loop stops (:func:`progress_stop`).  Such an
+episode aims over the gain the truth showed: where the rest responds in proportion to the
+aim it removes all that is left, so removing less than half means the truth's response
+differs from the measured gain by more than half of it (or the pushes an episode may make
+reach less than half of what is left): another episode would do no better.  Each episode
+that goes on halves the error at least, so a loop whose first episode ends ``e_1`` off runs
+fewer than ``2 + log2(e_1 / tol)`` episodes, ``[plan] episodes`` at most."""
+
+
+def tolerance_units(pose, spec: PlanSpec) -> float:
+    """A rest pose's error in units of the tolerances: ``max(e / tol, |e_yaw| / yaw_tol)``
+    (the yaw's with a yaw target); within tolerance where <= 1."""
+    pos, yaw = pose_error(pose, spec)
+    return max(pos / spec.tolerance, yaw / spec.yaw_tolerance)
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Why the episodes stopped before the tolerance or their cap: ``rule`` ``"progress"``
+    (episode ``episode`` removed ``removed``, a fraction, of the error it started from:
+    less than :data:`MIN_PROGRESS`) or ``"gain"`` (the response ``gain`` episode
+    ``episode`` measured says the next, aiming at most ``1 / GAIN_BOUNDS[0]`` times what is
+    left, would remove less than :data:`MIN_PROGRESS` of it); ``message`` in words."""
+
+    rule: str
+    episode: int
+    message: str
+    removed: float | None = None
+    gain: float | None = None
+
+    def to_dict(self) -> dict:
+        return {"rule": self.rule, "episode": self.episode, "removed_fraction": self.removed,
+                "response_gain": self.gain, "min_progress": MIN_PROGRESS}
+
+
+def progress_stop(before, after, index: int, spec: PlanSpec) -> Stop | None:
+    """A :class:`Stop` when episode ``index``, from the rest pose ``before`` to ``after``
+    (m, m, rad), ends outside the tolerance having removed less than :data:`MIN_PROGRESS`
+    of the error (:func:`tolerance_units`) it started from; None otherwise."""
+    start, end = tolerance_units(before, spec), tolerance_units(after, spec)
+    removed = 1.0 - end / start
+    if end <= 1.0 or removed >= MIN_PROGRESS:
+        return None
+    what = "farther than it started" if removed < 0 else f"it removed {removed:.1%} of its error"
+    return Stop("progress", index, f"episode {index} ended {end:.3g} tolerances off from {start:.3g}: {what}, less "
+                f"than the {MIN_PROGRESS:.0%} an episode must remove: the loop stops (the truth does not respond "
+                "as its measured gain predicts, or an episode's pushes reach too little of what is left)",
+                removed=removed)
+
+
+def gain_stop(gain, rest, index: int, spec: PlanSpec) -> Stop | None:
+    """A :class:`Stop` when the raw response ``gain`` (:func:`secant_gain`, (3,)) episode
+    ``index`` measured is below ``MIN_PROGRESS * GAIN_BOUNDS[0]`` in a component still
+    outside its tolerance at ``rest``: the next episode, aiming at most ``1 / GAIN_BOUNDS[0]``
+    times what is left, would move the block less than :data:`MIN_PROGRESS` of it."""
+    pos, yaw = pose_error(rest, spec)
+    outside = [pos > spec.tolerance, False, yaw > spec.yaw_tolerance]
+    weak = [j for j in (0, 2) if outside[j] and not np.isnan(gain[j]) and gain[j] < MIN_PROGRESS * GAIN_BOUNDS[0]]
+    if not weak:
+        return None
+    g = float(gain[weak[0]])
+    return Stop("gain", index, f"episode {index}'s rest moved {g:.3g}x the {'yaw' if weak[0] else 'displacement'} it "
+                f"aimed at: the next, aiming at most {1 / GAIN_BOUNDS[0]:g}x what is left, would remove less than "
+                f"{MIN_PROGRESS:.0%} of it: the loop stops (the pushes hardly move the block's rest pose: a pad "
+                "that slides on it?)", gain=g)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from ..config.plan import PlanSpec
 from ..config.scenario import Scenario
 from ..planning.target import pose_error, within_tolerance
 from ..planning.document import POSE_UNITS
-from .episodes import Episode, pose_json
+from .episodes import Episode, Stop, pose_json
 from .fit import Identification
 
 
@@ -120,7 +120,7 @@ class ClosedLoopResult:
     final_estimates: Identification | None
     wall_time: float
     runs: TruthRuns
-    stopped: str = ""  # why the episodes stopped before the tolerance or their cap ("": they did not)
+    stopped: Stop | None = None  # why the episodes stopped before the tolerance or their cap (None: they did not)
 
     @property
     def within_tolerance(self) -> bool:
@@ -151,7 +151,9 @@ class ClosedLoopResult:
             "closed_loop": {"commands": [command_to_dict(it.command) for it in self.iterations],
                             "final_pose": pose_json(self.final_pose),
                             "final_error": error_json(self.final_pose, spec),
-                            "episodes": len(self.episodes) or None, "stopped": self.stopped or None},
+                            "episodes": len(self.episodes) or None,
+                            "stopped": self.stopped.message if self.stopped else None,
+                            "stop": self.stopped.to_dict() if self.stopped else None},
             "final_estimates": identified_json(self.final_estimates),
             "iterations": [it.to_dict() for it in self.iterations],
             "episodes": [e.to_dict() for e in self.episodes],
