@@ -218,3 +218,21 @@ def test_a_contact_pushed_onto_its_cone_at_the_end_of_a_step_has_no_derivative()
     assert abs(right - left) > 0.5 * max(abs(left), abs(right)), (left, right)
     for dx in (hi - h, hi + h):
         assert rollout_derivatives(m, [press, Command(dx=dx)]).differentiable
+
+
+def test_a_planners_rollout_names_only_the_commands_it_sends():
+    """The gap case above through pushplan's FE rollouts (the service's ``Rollout``): the
+    transition is along ``dz[0]`` alone, which a planner or a service client does not
+    command (its rows are ``dx, dy, dtheta``); its Jacobian is whole, and the reason is
+    "" (fe_contact's own names ``dz[0]``).  A transition along commanded inputs is named
+    by them (``nondifferentiable(columns)``)."""
+    from pushplan.planning.rollouts import FeRollouts, planar_columns
+
+    m = Model(block_mesh(SIZE, (2, 2, 1)), Material(2e6, 0.3), Friction(0.3, 0.15, 0.4), options=TIGHT)
+    assert "dz[0]" in rollout_derivatives(m, [Command(dx=1e-4)]).nondifferentiable()
+    roll, final = FeRollouts(m, (Command(),), "test").rollout_with_jacobian(np.array([[1e-4, 0.0, 0.0]]), release=False)
+    assert np.all(np.isfinite(roll.loaded_jacobian)) and np.all(np.isfinite(final))
+    assert roll.nondifferentiable == ""
+    # the columns: dx, dy, dtheta of each command, never dz
+    result = rollout_derivatives(m, [Command(dx=1e-4)] * 2)
+    assert [result.inputs[j] for j in planar_columns(2)] == ["dx[0]", "dy[0]", "dtheta[0]", "dx[1]", "dy[1]", "dtheta[1]"]

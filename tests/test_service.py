@@ -10,6 +10,7 @@ with its status, each Jacobian next to its pose, a missing derivative ``null`` w
 import dataclasses
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -489,7 +490,31 @@ def test_a_jacobian_with_missing_derivatives_is_strict_json_with_nulls_and_the_r
         nulls = [v is None for v in np.array(rest["jacobian"], dtype=object).ravel()]
         assert any(nulls) and not all(nulls) and docs[True]["nondifferentiable"]
         assert rest["status"] == "settled" and len(rest["pose"]) == 3
+        # the reason names the request's commands, dx[k], dy[k], dtheta[k] (never fe_contact's dz[k]),
+        # exactly the columns (k, c) of the Jacobian that hold a null
+        named = {(int(k), ("dx", "dy", "dtheta").index(c))
+                 for c, k in re.findall(r"\b(dx|dy|dz|dtheta)\[(\d+)\]", docs[True]["nondifferentiable"])}
+        nulls = {(k, c) for _, k, c in np.argwhere(np.array(rest["jacobian"], dtype=object) == None)}  # noqa: E711
+        assert named == nulls and all(k < len(commands) for k, _ in named)
         # the loaded poses' are the same with or without the release after them
         assert docs[True]["jacobian"] == docs[False]["jacobian"] and docs[False]["rest"] is None
     finally:
         Client.call(client, "Close", {"session": sid})
+
+
+def test_a_push_beyond_the_scenarios_step_bound_is_refused_naming_it(client, steel):
+    """The trial's 1 m push was rolled out: a command beyond the session's ``[plan] max_step``
+    (or half a turn without a yaw target) is refused as other bad input, one line naming the
+    row and its value, the session untouched; the planner's own commands at the bound (5e-9
+    over it: ipopt's bound relaxation) are served."""
+    before = steel.rollout(PUSHES)["poses"]
+    msg = _refused(lambda: steel.rollout([PUSHES[0], [1.0, 0.0, 0.0]]))
+    assert msg == ("commands[1]: [1.0, 0.0, 0.0] is a push of 1 m in the plane, beyond plan.max_step = 0.00025 m "
+                   "(the scenario's bound on one command)")
+    msg = _refused(lambda: steel.rollout([[0.0, 0.0, 4.0]]))
+    assert msg.startswith("commands[0]: [0.0, 0.0, 4.0] turns 229.183 deg, beyond half a turn")
+    msg = _refused(lambda: steel.replan([[0.0, 3e-4, 0.0]], OBSERVED[0]))
+    assert msg.startswith("executed[0]: [0.0, 0.0003, 0.0] is a push of 0.0003 m")
+    assert len(steel.rollout([[0.25e-3 * (1 + 5e-9), 0.0, 0.0]])["poses"]) == 2
+    assert steel.rollout(PUSHES)["poses"] == before and steel.state()["executed"] == 0
+    _works(client)

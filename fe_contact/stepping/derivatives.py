@@ -123,10 +123,18 @@ class RolloutDerivatives:
         K = self.d_commands.shape[2]
         return tuple(f"{c}[{k}]" for k in range(K) for c in COMPONENTS) + tuple(self.parameters)
 
-    def nondifferentiable(self) -> str:
+    def nondifferentiable(self, columns=None) -> str:
         """Why some derivatives do not exist ("" if they all do): the contacts at
-        a transition, by step and kind (:func:`~fe_contact.stepping.transitions.summary`)."""
-        return summary(self.transitions, self.inputs)
+        a transition, by step and kind (:func:`~fe_contact.stepping.transitions.summary`).
+        ``columns`` (indices into :attr:`inputs`; default all): the inputs a caller
+        varies (a planner's in-plane commands, without ``dz``); only those are named,
+        and a transition along none of them is left out (its derivatives are not asked)."""
+        transitions = self.transitions
+        if columns is not None:
+            keep = set(columns)
+            transitions = tuple(t for t in (replace(t, inputs=tuple(j for j in t.inputs if j in keep))
+                                             for t in transitions) if t.inputs)
+        return summary(transitions, self.inputs)
 
     def jacobian(self) -> np.ndarray:
         """All derivatives as one matrix (n_steps * 9, n_steps * 4 + n_parameters),

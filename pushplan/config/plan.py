@@ -45,7 +45,7 @@ from fe_contact import Command, wrap_angle
 from ..errors import InputError
 from ..limits import (MAX_COUNT, MAX_EFFORT_WEIGHT, MAX_ELEMENTS, MAX_EPISODES, MAX_LENGTH, MAX_MONTE_CARLO,
                       MAX_PLAN_STEPS, MAX_ROBUST_ITERATIONS, MAX_ROLLOUTS, MIN_PLAN_STEP, MIN_TOLERANCE_LENGTH)
-from .commands import degrees_exact
+from .commands import MAX_TURN_DEG, degrees_exact
 from .scenario import Scenario
 from .validate import Table, count
 
@@ -111,6 +111,13 @@ def parse_robust(t: Table) -> RobustSpec:
                       seed=r.integer("seed", 0, minimum=0, maximum=MAX_COUNT))
 
 
+STEP_SLACK = 1e-6
+"""A command may exceed the step bounds by this fraction of them (:meth:`PlanSpec.check_steps`):
+the planner's own commands keep their bound to its NLP's tolerance (ipopt relaxes the bound
+``|u|^2 <= max_step^2`` by 1e-8 of it: a push at the bound is 5e-9 longer, measured), so
+a client sending them back is not refused."""
+
+
 @dataclass(frozen=True)
 class PlanSpec:
     """A validated ``[plan]`` table (SI units, radians).
@@ -159,6 +166,31 @@ class PlanSpec:
         if self.yaw_targeted:
             ok = ok and abs(d[2]) <= self.steps * self.max_dtheta
         return ok
+
+    def check_steps(self, commands, key: str) -> None:
+        """Refuse commands beyond the step bounds: a row ``(dx, dy, dtheta)`` (m, m, rad) of
+        ``commands`` (K, 3) whose in-plane length exceeds ``max_step``, or whose turn exceeds
+        ``max_dtheta`` with a yaw target (without one: half a turn, the command codec's
+        :data:`~pushplan.config.commands.MAX_TURN_DEG`), each by more than
+        :data:`STEP_SLACK` of it: the bounds the planner's own commands keep, the physical
+        size of one push the scenario states.
+
+        Raises
+        ------
+        InputError
+            Naming ``key[k]``, the row and the bound it exceeds.
+        """
+        for k, (dx, dy, dtheta) in enumerate(commands):
+            if math.hypot(dx, dy) > self.max_step * (1 + STEP_SLACK):
+                raise InputError(f"{key}[{k}]: {[float(dx), float(dy), float(dtheta)]} is a push of "
+                                 f"{math.hypot(dx, dy):.6g} m in the plane, beyond plan.max_step = {self.max_step:g} m "
+                                 "(the scenario's bound on one command)")
+            turn = self.max_dtheta * (1 + STEP_SLACK) if self.yaw_targeted else math.radians(MAX_TURN_DEG)
+            if abs(dtheta) > turn or (not self.yaw_targeted and abs(dtheta) == turn):
+                bound = (f"plan.max_dtheta_deg = {math.degrees(self.max_dtheta):g}" if self.yaw_targeted
+                         else f"half a turn ({MAX_TURN_DEG:g} deg, exclusive)")
+                raise InputError(f"{key}[{k}]: {[float(dx), float(dy), float(dtheta)]} turns {math.degrees(dtheta):.6g} "
+                                 f"deg, beyond {bound} (the scenario's bound on one command)")
 
     def to_dict(self) -> dict:
         """The ``plan.json`` form: every setting (angles in degrees, None where unused) and the travel."""

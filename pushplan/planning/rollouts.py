@@ -64,7 +64,10 @@ class Rollout:
         upper face follows; the reduced model assumes it does).
     nondifferentiable : str
         For a rollout with derivatives: why some of them do not exist (a contact
-        at a transition of the contact law, :mod:`fe_contact.stepping.transitions`), or "".
+        at a transition of the contact law, :mod:`fe_contact.stepping.transitions`), or "";
+        the inputs named are the commands' ``dx[k]``, ``dy[k]``, ``dtheta[k]`` (k from 0),
+        the columns of the Jacobians (:func:`planar_columns`: a transition along ``dz``
+        alone, which is not commanded, is left out).
     loaded_jacobian : ndarray, shape (3, K, 3), or None
         For a rollout with derivatives: ``d lower[-1] / d commands``, the final loaded
         pose's (m/m, m/rad, rad/m, rad/rad), NaN where it does not exist.
@@ -89,6 +92,13 @@ class Rollout:
                 raise ValueError("this rollout has no release: no rest pose")
             return self.rest
         return self.lower[-1]
+
+
+def planar_columns(K: int) -> list[int]:
+    """The columns of ``dx[k]``, ``dy[k]``, ``dtheta[k]`` (k < K) among the inputs of
+    :func:`fe_contact.rollout_derivatives` (``dx, dy, dz, dtheta`` per command): the
+    commands a planner (and a service client) sends; ``dz`` is not one of them (0)."""
+    return [4 * k + c for k in range(K) for c in PLANAR_COMPONENTS]
 
 
 class FeRollouts:
@@ -243,7 +253,7 @@ class FeRollouts:
         commanded = pressed.state.upper_translation[:2] + np.cumsum(np.asarray(commands, float)[:, :2], axis=0)
         roll = Rollout(np.array(commands, float), lower, upper, reports,
                        tuple(StepSummary.from_report(r) for r in reports), time.perf_counter() - t0, rest,
-                       tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable(),
+                       tuple(result.reports[K:]), self._pad_slip_of(commanded, reports), result.nondifferentiable(planar_columns(K)),
                        result.d_commands[K - 1, :3][:, :, PLANAR_COMPONENTS])
         return roll, result.d_commands[-1, :3][:, :, PLANAR_COMPONENTS]
 

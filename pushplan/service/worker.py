@@ -104,7 +104,9 @@ class SessionState:
         from ..identify.closed_loop import modifier, shifted_spec
         from ..planning.replan import Start, remaining_spec
 
-        executed = planar_commands(rows(payload.get("executed"), "executed"))
+        executed = rows(payload.get("executed"), "executed")
+        self.spec.check_steps(executed, "executed")
+        executed = planar_commands(executed)
         observed = pose(payload.get("observed"), "observed")
         spec = self._spec(payload)
         if len(executed) >= spec.steps:
@@ -142,6 +144,7 @@ class SessionState:
         commands = rows(payload.get("commands"), "commands", max_rows=self.spec.steps * 10)
         if len(commands) == 0:
             raise InputError("commands: at least one row (dx, dy, dtheta) is needed, got []")
+        self.spec.check_steps(commands, "commands")
         mesh = payload.get("mesh") or "planning"
         fe = {"planning": self.session.coarse, "verification": self.session.fine}[mesh]
         if fe is None:
