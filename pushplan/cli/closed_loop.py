@@ -11,8 +11,10 @@ closed- and open-loop paths of the lower face as ``plan/verified`` / ``plan/naiv
 
 A rest target is scored on the truth's rest pose after its release; while that is outside the
 tolerance the gripper grasps the block again where it rests and pushes the correction, up to
-``[plan] episodes`` grasp-push-release cycles (``closed_loop.json``'s ``episodes``).  Exit status 3 when
-the closed loop ends outside the tolerance or a solver fails inside it (the files are
+``[plan] episodes`` grasp-push-release cycles (``closed_loop.json``'s ``episodes``); an episode
+that removes less than half of the error it started from stops them (``closed_loop.stop``,
+:mod:`pushplan.identify.episodes`).  Exit status 3 when the closed loop ends outside the
+tolerance, stops so, or a solver fails inside it (the files are
 written when the loop finished); 2 for bad input (nothing written), checked before the
 loop starts: a failure inside the loop is never 2 (a bug there exits 1 with its traceback).
 """

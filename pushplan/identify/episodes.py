@@ -21,6 +21,11 @@ Each episode is planned from the observed rest pose: the planner's block starts 
 reference, so an episode's poses and target are relative to where the block rests
 (world axes: the floor's friction axes do not turn with the block; the block's own turn
 since the first grasp is taken as small).
+
+The episodes stop short of their cap, a failure, when one after the first removes less
+than :data:`MIN_PROGRESS` of the error it started from (:func:`progress_stop`), or when the
+response gain an episode measured says the next cannot (:func:`gain_stop`): the number of
+episodes is then logarithmic in the first one's error over the tolerance (:data:`MIN_PROGRESS`).
 """
 
 from __future__ import annotations
