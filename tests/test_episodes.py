@@ -223,7 +223,7 @@ class ScriptedTruth:
         return self
 
 
-def scripted_episodes(monkeypatch, response, first_rest, episodes=6):
+def scripted_episodes(monkeypatch, response, first_rest, episodes=6, first_status="converged"):
     from pushplan.identify import closed_loop as loop
 
     truth = ScriptedTruth(response, first_rest)
@@ -242,7 +242,11 @@ def scripted_episodes(monkeypatch, response, first_rest, episodes=6):
     monkeypatch.setattr(loop, "_pushes", pushes)
     spec = dataclasses.replace(parse_plan(parse_scenario(tomllib.loads(SCENARIO))), episodes=episodes,
                                target_state="rest")
-    _, eps, _, stopped = loop._episodes(None, spec, truth, [], None, (), loop.LoopOptions(), 0.0)
+    from fe_contact import Command
+    from pushplan.identify.loop_result import Iteration
+
+    first = [Iteration(1, Command(), np.zeros(3), {}, first_status, "", 0, None, 0.0, np.zeros((2, 3)))]
+    _, eps, _, stopped = loop._episodes(None, spec, truth, first, None, (), loop.LoopOptions(), 0.0)
     return spec, eps, truth.aims, stopped
 
 
@@ -317,6 +321,21 @@ def test_a_response_gain_that_cannot_close_stops_before_the_next_episode(monkeyp
     assert "0.02x" in stopped.message
 
 
+def test_an_episode_at_its_reach_that_hardly_moves_the_block_stops_the_loop(monkeypatch):
+    """The trial-like slipping pad: the first plan (or its re-plans) beyond reach, so the
+    episode pushed as far as its steps allow, and the rest moved 0.4 % of the target: the
+    next episode, beyond reach as well, would move it as little; the loop stops without it.
+    An episode at its reach that moved the block more than half of what is left goes on."""
+    calls = []
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, calls.append, 0.004 * np.array([3e-3, 1e-3, 0.0]),
+                                                 first_status="infeasible")
+    assert len(eps) == 1 and not calls and stopped.rule == "reach" and stopped.episode == 1
+    assert stopped.predicted == pytest.approx(0.004 / 0.996) and stopped.to_dict()["predicted_fraction"] < MIN_PROGRESS
+    spec, eps, aims, stopped = scripted_episodes(monkeypatch, lambda a: 0.37 * a, 0.37 * np.array([3e-3, 1e-3, 0.0]),
+                                                 first_status="infeasible")
+    assert stopped is None and eps[-1].error["within_tolerance"]
+
+
 @pytest.mark.parametrize("first, later, episodes", [(0.37, 0.37, 2), (0.3, 0.2, 4), (0.9, 0.9, 2)])
 def test_episodes_that_halve_the_error_go_on(monkeypatch, first, later, episodes):
     """A truth whose later episodes respond within half of the measured gain is not stopped:
@@ -327,9 +346,9 @@ def test_episodes_that_halve_the_error_go_on(monkeypatch, first, later, episodes
 
 def test_a_pad_that_slides_stops_the_closed_loop_as_a_failure(tmp_path):
     """End to end on a tiny block: a pad of 0.02 on a 0.6 / 0.25 floor slides, the block
-    hardly moves (the plan says the target is beyond reach: no gain is measured), and the
-    loop stops after the second episode, which removed nothing of the error, instead of
-    running its 6 episodes: exit 3, the rule and its numbers in ``closed_loop.json``."""
+    hardly moves though the episode pushed as far as its step allows (the plan says the
+    target is beyond reach), and the loop stops after it instead of running its 6 episodes:
+    exit 3, the rule and its numbers in ``closed_loop.json``."""
     import json
 
     from pushplan.cli import main
@@ -346,6 +365,6 @@ def test_a_pad_that_slides_stops_the_closed_loop_as_a_failure(tmp_path):
     stop = doc["closed_loop"]["stop"]
     print(stop, [e["rest_error"]["position"] for e in doc["episodes"]])
     assert code == 3 and not doc["closed_loop"]["final_error"]["within_tolerance"]
-    assert stop["rule"] == "progress" and stop["episode"] == 2 and len(doc["episodes"]) == 2
-    assert abs(stop["removed_fraction"]) < 1e-3 and stop["min_progress"] == MIN_PROGRESS
-    assert doc["closed_loop"]["stopped"].startswith("episode 2 ended")
+    assert stop["rule"] == "reach" and stop["episode"] == 1 and len(doc["episodes"]) == 1
+    assert abs(stop["predicted_fraction"]) < 1e-3 and stop["min_progress"] == MIN_PROGRESS
+    assert doc["closed_loop"]["stopped"].startswith("episode 1 went as far as its steps allow")

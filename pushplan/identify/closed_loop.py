@@ -38,8 +38,8 @@ from ..planning.replan import remaining_spec, replan
 from ..planning.target import pose_error, within_tolerance
 from ..run import StepSummary, drive
 from ..run.observations import observations_from_steps
-from .episodes import (Episode, episode_spec, gain_stop, progress_stop, regrasp, relative_summary, response_gain,
-                       secant_gain)
+from .episodes import (Episode, episode_spec, gain_stop, progress_stop, reach_stop, regrasp, relative_summary,
+                       response_gain, secant_gain)
 from .fit import Identification, identify
 from .loop_result import ClosedLoopResult, Iteration, RobustReplan, TruthRuns, error_json, friction_of
 from .noise import NoiseModel
@@ -322,26 +322,27 @@ def _episodes(current, spec, truth, iterations, release, press, opts: LoopOption
     further episodes (:mod:`.episodes`), ``spec.episodes`` in all at most, each aiming at
     what is left over the truth's response gain of the one before
     (:func:`~.episodes.response_gain`; of the last one in reach of its steps).  The loop
-    stops (a failure, reported) when an episode after the first removes less than
-    :data:`~.episodes.MIN_PROGRESS` of the error it started from
-    (:func:`~.episodes.progress_stop`), or before an episode that the measured gain says
-    cannot (:func:`~.episodes.gain_stop`).  Returns the model planned with last, the
+    stops (a failure, reported) when an episode aimed over a measured gain removes less
+    than :data:`~.episodes.MIN_PROGRESS` of the error it started from
+    (:func:`~.episodes.progress_stop`), or before an episode that the measured gain, or the
+    last episode's reach, says cannot (:func:`~.episodes.gain_stop`, :func:`~.episodes.reach_stop`).  Returns the model planned with last, the
     episodes, the last episode's truth and why the loop stopped early (a
     :class:`~.episodes.Stop`, or None)."""
     truth.let_go(release)
     episodes = [Episode(1, np.zeros(3), np.array(spec.target), tuple(iterations), truth.pose, truth.rest,
                         error_json(truth.rest, spec), 0, time.perf_counter() - t_start)]
-    stop, gain = None, np.ones(3)
+    stop, gain, measured = None, np.ones(3), False  # measured: the next episode aims over a measured gain
     while len(episodes) < spec.episodes and not within_tolerance(episodes[-1].rest, spec):
         t0, index, last = time.perf_counter(), len(episodes) + 1, episodes[-1]
         origin = last.rest
+        moved = last.rest - last.origin
         if not any(it.plan_status == "infeasible" for it in last.iterations):
-            # an episode that aimed beyond reach went as far as the steps allow: says nothing of the gain
-            raw = secant_gain(last.rest - last.origin, last.aimed)
-            gain = response_gain(last.rest - last.origin, last.aimed)
-            stop = gain_stop(raw, last.rest, last.index, spec)
-            if stop is not None:
-                break
+            gain, measured = response_gain(moved, last.aimed), True
+            stop = gain_stop(secant_gain(moved, last.aimed), last.rest, last.index, spec)
+        else:  # an episode that aimed beyond reach went as far as the steps allow: says nothing of the gain
+            stop = reach_stop(moved, last.rest, last.index, spec)
+        if stop is not None:
+            break
         spec_e = episode_spec(spec, origin, gain)
         opts.say(f"episode {index}: rest {pose_error(origin, spec)[0] * 1e6:.3f} um off, re-grasp")
         truth = truth.regrasped(press)
@@ -352,7 +353,7 @@ def _episodes(current, spec, truth, iterations, release, press, opts: LoopOption
         episodes.append(Episode(index, origin, np.array(spec_e.target), _world(its, origin), origin + truth.pose,
                                 world, error_json(world, spec), 1 if truth.model.pad is None else 0,
                                 time.perf_counter() - t0))
-        stop = progress_stop(origin, world, index, spec)
+        stop = progress_stop(origin, world, index, spec) if measured else None
         if stop is not None:
             break
     if stop is not None:

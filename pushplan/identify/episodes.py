@@ -24,7 +24,8 @@ since the first grasp is taken as small).
 
 The episodes stop short of their cap, a failure, when one after the first removes less
 than :data:`MIN_PROGRESS` of the error it started from (:func:`progress_stop`), or when the
-response gain an episode measured says the next cannot (:func:`gain_stop`): the number of
+response gain an episode measured (:func:`gain_stop`), or the rest displacement of one that
+went as far as its steps allow (:func:`reach_stop`), says the next cannot: the number of
 episodes is then logarithmic in the first one's error over the tolerance (:data:`MIN_PROGRESS`).
 """
 
@@ -124,13 +125,17 @@ def response_gain(observed: np.ndarray | None, aimed: np.ndarray | None) -> np.n
 
 MIN_PROGRESS = 0.5
 """The fraction of the rest error (in units of the tolerances, :func:`tolerance_units`) an
-episode after the first must remove, else the loop stops (:func:`progress_stop`).  Such an
-episode aims over the gain the truth showed: where the rest responds in proportion to the
-aim it removes all that is left, so removing less than half means the truth's response
-differs from the measured gain by more than half of it (or the pushes an episode may make
-reach less than half of what is left): another episode would do no better.  Each episode
-that goes on halves the error at least, so a loop whose first episode ends ``e_1`` off runs
-fewer than ``2 + log2(e_1 / tol)`` episodes, ``[plan] episodes`` at most."""
+episode aimed over a measured gain must remove, else the loop stops (:func:`progress_stop`).
+Where the rest responds in proportion to the aim such an episode removes all that is left,
+so removing less than half means the truth's response differs from the measured gain by
+more than half of it (or the pushes an episode may make reach less than half of what is
+left): another episode would do no better.  The same fraction bounds what the next episode
+is predicted to remove from the gain (:func:`gain_stop`) or from the reach
+(:func:`reach_stop`) of the one before.  So every episode the loop goes on from, but the
+first and the one that first measures a gain, cut the error to 1/2 (aimed over a measured
+gain) or 2/3 (at its reach: it moved the block at least half of what is left after it) of
+what it started from: the episodes are logarithmic in the first one's error over the
+tolerance, ``[plan] episodes`` at most."""
 
 
 def tolerance_units(pose, spec: PlanSpec) -> float:
@@ -144,19 +149,22 @@ def tolerance_units(pose, spec: PlanSpec) -> float:
 class Stop:
     """Why the episodes stopped before the tolerance or their cap: ``rule`` ``"progress"``
     (episode ``episode`` removed ``removed``, a fraction, of the error it started from:
-    less than :data:`MIN_PROGRESS`) or ``"gain"`` (the response ``gain`` episode
-    ``episode`` measured says the next, aiming at most ``1 / GAIN_BOUNDS[0]`` times what is
-    left, would remove less than :data:`MIN_PROGRESS` of it); ``message`` in words."""
+    less than :data:`MIN_PROGRESS`), ``"gain"`` (the response ``gain`` episode ``episode``
+    measured says the next, aiming at most ``1 / GAIN_BOUNDS[0]`` times what is left, would
+    remove ``predicted`` of it, less than :data:`MIN_PROGRESS`) or ``"reach"`` (episode
+    ``episode`` went as far as its steps allow and moved the block ``predicted`` of what is
+    left after it: the next, at most as far, would remove that much); ``message`` in words."""
 
     rule: str
     episode: int
     message: str
     removed: float | None = None
     gain: float | None = None
+    predicted: float | None = None
 
     def to_dict(self) -> dict:
         return {"rule": self.rule, "episode": self.episode, "removed_fraction": self.removed,
-                "response_gain": self.gain, "min_progress": MIN_PROGRESS}
+                "response_gain": self.gain, "predicted_fraction": self.predicted, "min_progress": MIN_PROGRESS}
 
 
 def progress_stop(before, after, index: int, spec: PlanSpec) -> Stop | None:
@@ -188,7 +196,25 @@ def gain_stop(gain, rest, index: int, spec: PlanSpec) -> Stop | None:
     return Stop("gain", index, f"episode {index}'s rest moved {g:.3g}x the {'yaw' if weak[0] else 'displacement'} it "
                 f"aimed at: the next, aiming at most {1 / GAIN_BOUNDS[0]:g}x what is left, would remove less than "
                 f"{MIN_PROGRESS:.0%} of it: the loop stops (the pushes hardly move the block's rest pose: a pad "
-                "that slides on it?)", gain=g)
+                "that slides on it?)", gain=g, predicted=g / GAIN_BOUNDS[0])
+
+
+def reach_stop(moved, rest, index: int, spec: PlanSpec) -> Stop | None:
+    """A :class:`Stop` when episode ``index``, which went as far as its steps allow (a plan
+    beyond reach), moved the block's rest ``moved`` (3,) (m, m, rad) less than
+    :data:`MIN_PROGRESS` of the position error ``l`` left at ``rest``, along it:
+    ``(moved . l) / (l . l)`` over (x, y).  The next episode's aim is beyond reach too (more
+    than twice what this one moved, at a gain that is clipped to at least 0.1: further
+    still), so it pushes as far as this one did and would move the block as little."""
+    left = np.asarray(spec.target[:2]) - np.asarray(rest[:2], float)
+    if pose_error(rest, spec)[0] <= spec.tolerance:
+        return None
+    p = float(np.dot(np.asarray(moved[:2], float), left) / np.dot(left, left))
+    if p >= MIN_PROGRESS:
+        return None
+    return Stop("reach", index, f"episode {index} went as far as its steps allow and moved the block's rest {p:.3g} of "
+                f"what is left after it: the next, no further, would remove less than {MIN_PROGRESS:.0%} of it: the "
+                "loop stops (the pushes hardly move the block's rest pose: a pad that slides on it?)", predicted=p)
 
 
 @dataclass(frozen=True)
