@@ -203,9 +203,10 @@ def reach_stop(moved, rest, index: int, spec: PlanSpec) -> Stop | None:
     """A :class:`Stop` when episode ``index``, which went as far as its steps allow (a plan
     beyond reach), moved the block's rest ``moved`` (3,) (m, m, rad) less than
     :data:`MIN_PROGRESS` of the position error ``l`` left at ``rest``, along it:
-    ``(moved . l) / (l . l)`` over (x, y).  The next episode's aim is beyond reach too (more
-    than twice what this one moved, at a gain that is clipped to at least 0.1: further
-    still), so it pushes as far as this one did and would move the block as little."""
+    ``(moved . l) / (l . l)`` over (x, y).  The next episode's pushes are bounded as this
+    one's were (``steps`` of ``max_step``), and this one used them to their bound: the rest
+    moving with the push, the next would move the block about as far at most, less than
+    half of what is left."""
     left = np.asarray(spec.target[:2]) - np.asarray(rest[:2], float)
     if pose_error(rest, spec)[0] <= spec.tolerance:
         return None
