@@ -491,3 +491,23 @@ def test_gauss_seidel_sweep_with_a_frictionless_axis_and_its_shape_checks():
         _gauss_seidel_sweeps(W, q, mx, my, rho, np.zeros((n - 1, 3)), 1, np.zeros((0, 3, 3)))
     with pytest.raises(ValueError, match="must be"):
         _gauss_seidel_sweeps(W[:-3, :-3].copy(), q, mx, my, rho, r, 1, np.zeros((0, 3, 3)))
+
+
+def test_newton_given_a_stall_window_stops_where_it_no_longer_progresses():
+    """``solve_checked(..., stall=w)``: semismooth Newton gives up (not converged) once
+    ``w`` steps have not halved its best residual, instead of running out its 100
+    steps (a frictional pad's load equation then starts from zero forces:
+    fe_contact.stepping.pad_load.WARM_STALL).  A tolerance below rounding: the
+    residual reaches 5e-18 and stays, so the window ends it; without one, 100 steps."""
+    rng = np.random.default_rng(0)
+    n = 6
+    A = rng.normal(size=(3 * n, 3 * n))
+    W, q = A @ A.T + 3 * n * np.eye(3 * n), rng.normal(size=(n, 3))
+    mx, my = np.full(n, 0.5), np.full(n, 0.3)
+    plain = solve_checked(W, q, mx, my, np.zeros((n, 3)), "newton", 1e-300, None, True)
+    stalled = solve_checked(W, q, mx, my, np.zeros((n, 3)), "newton", 1e-300, None, True, stall=20)
+    assert plain.iterations == 100 and not plain.converged
+    assert not stalled.converged and 20 < stalled.iterations < 40
+    assert stalled.residual == pytest.approx(plain.residual, rel=1e-6)  # the same answer, 5e-18
+    converged = solve_checked(W, q, mx, my, np.zeros((n, 3)), "newton", 1e-12, None, True, stall=20)
+    assert converged.converged and converged.iterations < 20

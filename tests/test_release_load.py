@@ -262,3 +262,57 @@ def test_a_sticky_pad_released_in_six_load_steps_settles():
     _, release, rest = release_to_rest(m, state, Release("lift", 6), pushes[-1])
     assert rest.settled, rest.reason
     assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+
+
+def test_a_sticky_pads_release_costs_few_local_newton_steps_and_no_uzawa(monkeypatch):
+    """A pad 100 x the floor's (65 / 30) released in 4 load steps (the issue's block on
+    4 x 3 x 2): each of its Newton iterations costs a few local solves.  Its load
+    equation's probes once failed through every method (warm Newton 100 steps three
+    times, from zero, the paper's Uzawa 20000 sweeps, 2-3 s each) and each iteration
+    of a step that ended past a jump of the load bracketed the jump again: 7436 local
+    Newton steps and 6 Uzawa solves for 49 Newton iterations, 14 s against the
+    pushes' 0.3 s; now about 2000 steps, none by Uzawa (benchmarks/release_cost.py)."""
+    solves = []
+
+    def counted(*args, **kwargs):
+        local = solve_checked(*args, **kwargs)
+        solves.append((args[5], local.iterations))
+        return local
+    from fe_contact.contact.local_solver import solve_checked
+    ratio = 100.0
+    m = Model(block_mesh((0.028, 0.022, 0.014), (4, 3, 2)), Material(2e6, 0.45, density=1000.0), FLOOR, quadrature=2,
+              pad=Friction(FLOOR.mu_x * ratio, FLOOR.mu_y * ratio, FLOOR.angle))
+    state, pushes = run(m, LOADS)
+    monkeypatch.setattr(newton, "solve_checked", counted)
+    _, release, rest = release_to_rest(m, state, Release("lift", 4), pushes[-1])
+    iterations = sum(r.newton_iterations for r in release)
+    steps = sum(n for method, n in solves if method == "newton")
+    print(f"{len(solves)} local solves, {steps} Newton steps, {iterations} release Newton iterations")
+    assert rest.settled, rest.reason
+    assert release[-1].normal_force == pytest.approx(m.weight, rel=WEIGHT_RTOL)
+    assert all(method == "newton" for method, _ in solves)  # no every-method fallback at a probe
+    assert steps <= 60 * iterations  # measured 41 (152 before)
+
+
+def test_a_step_past_a_jump_checks_it_with_one_local_solve_per_iteration():
+    """A load step that ended past a jump of the pad's load (the pad let go at once)
+    checks at its next Newton iteration that the jump is still just below the current
+    height with one local solve (pad_load.LoadDrive._still_past_jump), warm from the
+    jump's pressing side: g(h) = 0.01 below h = -1e-13 (relative to h_i), -P above;
+    a jump that moved above h_i (g > 0 there too) is no short cut."""
+    from fe_contact.stepping.pad_load import JUMP_WIDTH, LoadDrive
+
+    def still(jump_at):
+        calls = []
+        stub = SimpleNamespace(height=1e-3, tolerance=1e-12)
+
+        def at(dh, warm=None):
+            calls.append((dh, warm))
+            return SimpleNamespace(converged=True, r=np.full((1, 3), dh)), 0.01 if dh < jump_at else -0.05
+        return LoadDrive._still_past_jump(stub, at, "open", -0.05, "pressing"), calls, stub
+
+    found, calls, stub = still(-1e-16)
+    assert found == ("open", -0.05, 0.0) and len(calls) == 1 and calls[0][1] == "pressing"
+    assert calls[0][0] == pytest.approx(-JUMP_WIDTH * 1e-3) and stub.jump == pytest.approx(0.06)
+    found, calls, _ = still(-1.0)  # the pad open at h_i - JUMP_WIDTH |h_i| too: the full bracket follows
+    assert found is None and len(calls) == 1

@@ -54,6 +54,8 @@ _KRYLOV_MAX_ITER = 20  # GMRES iterations before a new LU is cheaper (n^2 each a
 # pushes, Krylov steps over an LU every Newton step: order 147 1.05-1.37x, 243 0.88-1.19x
 # (a draw), 363 0.53-0.60x, 507 0.46-0.50x, 867 0.28-0.29x (1323: local_solvers.py).
 _KRYLOV_MIN_ORDER = 300
+STALL_RATIO = 0.5
+"""A Newton solve given a ``stall`` window stops when the window did not halve the best residual before it."""
 
 
 @dataclass(frozen=True)
@@ -262,10 +264,13 @@ def solve_local(
 
 
 def solve_checked(W, q, mx, my, r0, method: str, tol: float, max_iter: int | None = None, assume_spd: bool = False,
-                  workspace: NewtonWorkspace | None = None) -> LocalSolution:
+                  workspace: NewtonWorkspace | None = None, stall: int | None = None) -> LocalSolution:
     """:func:`solve_local` for input already checked: ``W`` a finite ndarray (3 n,
     3 n) with a non-negative diagonal, ``q`` and ``r0`` finite (n, 3), ``mx``, ``my``
-    finite >= 0 (n,), ``method`` one of :data:`METHODS`, ``tol > 0``.
+    finite >= 0 (n,), ``method`` one of :data:`METHODS`, ``tol > 0``.  ``stall``
+    (Newton only): give up (not converged) once that many steps in a row have not
+    brought the residual below ``STALL_RATIO`` of its best before them (a caller
+    with a cheaper next start: :mod:`fe_contact.stepping.pad_load`).
 
     The FE Newton loop calls it every iteration with the tangent's own ``W``
     (checked when the tangent was built) and the model's coefficients: the checks of
@@ -277,7 +282,7 @@ def solve_checked(W, q, mx, my, r0, method: str, tol: float, max_iter: int | Non
     ra = _project(r0, mx, my)
     if method != "newton":
         return _uzawa(W, q, mx, my, ra, tol, 20000 if max_iter is None else int(max_iter), method)
-    return _newton(W, q, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace)
+    return _newton(W, q, mx, my, ra, tol, 100 if max_iter is None else int(max_iter), assume_spd, workspace, stall)
 
 
 def _uzawa(W, q, mx, my, r, tol, max_iter, method) -> LocalSolution:
@@ -286,7 +291,13 @@ def _uzawa(W, q, mx, my, r, tol, max_iter, method) -> LocalSolution:
     return LocalSolution(r, u, it, residual, residual <= tol, tuple(history), method)
 
 
-def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) -> LocalSolution:
+def _stalled(history: list, window: int | None) -> bool:
+    """Whether the last ``window`` residuals of ``history`` stayed above ``STALL_RATIO`` of the best before them."""
+    return window is not None and len(history) > window and \
+        min(history[-window:]) > STALL_RATIO * min(history[:-window])
+
+
+def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None, stall=None) -> LocalSolution:
     n = q.shape[0]
     D, mu, fixed, rho, w_ref = workspace.scaling(W, mx, my) if workspace is not None else _isotropic_scaling(W, mx, my)
     d = D.ravel()
@@ -318,7 +329,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
     residual = true_residual(s)
     history = [residual]
     it = 0
-    while residual > tol and it < max_iter:
+    while residual > tol and it < max_iter and not _stalled(history, stall):
         # the operator and its scaling: D W D itself, regularised, or W and d
         Wp, dp = (Ws + eta * np.eye(3 * n), np.ones_like(d)) if eta > 0 else (W, d)
         ac = (Wp, dp, qs - eta * s, mu, rho, fixed)  # the Alart-Curnier problem of this round
@@ -336,7 +347,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None) ->
             it += 1
             residual = true_residual(s)
             history.append(residual)
-            if residual <= tol or np.sqrt(2.0 * psi) <= 1e-3 * residual * max(np.linalg.norm(qs), 1e-300):
+            if residual <= tol or np.sqrt(2.0 * psi) <= 1e-3 * residual * max(np.linalg.norm(qs), 1e-300) \
+                    or _stalled(history, stall):
                 break
         if eta > 0:
             eta = max(0.2 * eta, 1e-10 * w_ref)

@@ -409,7 +409,7 @@ FALLBACK = {"newton": "uzawa", "uzawa": "newton", "uzawa_jacobi": "newton"}
 
 def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.ndarray, workspace,
                    tol: float | None = None, method: str | None = None, W: np.ndarray | None = None,
-                   retry: bool = True):
+                   retry: bool = True, stall: int | None = None):
     """The local contact problem ``u = W r + q`` of an iteration (scaled, see
     :mod:`fe_contact.stepping.tangent`) solved with ``SolverOptions.local_method``
     warm-started at ``r``; if that does not converge, retried with Newton
@@ -422,7 +422,8 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
     ``local_method`` (a pad's load equation needs its forces tighter than a
     warm-started Uzawa gives them, :mod:`fe_contact.stepping.pad_load`), ``W``
     the tangent's (a compliant gripper's plate eliminated into it); without
-    ``retry`` the first method only."""
+    ``retry`` the first method only, given up after ``stall`` steps without
+    progress (:func:`~fe_contact.contact.local_solver.solve_checked`)."""
     opts = model.options
     best = None
     first = method or opts.local_method
@@ -433,7 +434,7 @@ def _solve_contact(model: Model, tangent: Tangent, q_scaled: np.ndarray, r: np.n
             tangent.W_scaled if W is None else W, q_scaled, model.contacts.mu_x, model.contacts.mu_y, start, method,
             opts.local_tol if tol is None else tol, opts.local_max_iter,
             assume_spd=spd,  # K_ff is SPD (with the upper face prescribed, or the springs)
-            workspace=workspace if method == "newton" and spd else None,
+            workspace=workspace if method == "newton" and spd else None, stall=None if retry else stall,
         )
         if local.converged:
             return local
@@ -466,8 +467,8 @@ def _contact_correction(model: Model, state: State, tangent: Tangent, workspace,
         if drive is None:
             local = _solve_contact(model, tangent, q_scaled, r, workspace)
         else:  # the pad's height with its load equation (fe_contact.stepping.pad_load)
-            def load_solve(q, start, W=None, full=True):  # tight by semismooth Newton, else (full) as any step's
-                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton", W, retry=False)
+            def load_solve(q, start, W=None, full=True, stall=None):  # tight by semismooth Newton, else as any step's
+                local = _solve_contact(model, tangent, q, start, workspace, drive.local_tol, "newton", W, False, stall)
                 return local if local.converged or not full else _solve_contact(model, tangent, q, start, workspace,
                                                                                 W=W)
 
