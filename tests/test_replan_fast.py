@@ -1,0 +1,55 @@
+"""The warm re-plan's cheaper paths give the answers of the paths they replace (issue 41's
+re-plan latency): the planning NLP solved through the nlpsol of its ``Opti`` transcription
+equals ``Opti.solve`` bit for bit."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pushplan.planning.nlp import ReducedPlanner
+from test_planner import STEEL, _spec
+
+
+def _opti_outputs(program, values: dict, guess: dict) -> np.ndarray:
+    """The program's outputs from ``Opti.solve`` itself (set_value, set_initial, value)."""
+    opti = program.opti
+    for name, value in values.items():
+        opti.set_value(program.par[name], value)
+    for name, x in program.variables.items():
+        opti.set_initial(x, guess[name])
+    return np.asarray(opti.solve().value(program.outputs), float).ravel()
+
+
+def test_the_nlp_through_its_nlpsol_equals_opti_solve_bit_for_bit(monkeypatch):
+    """Cold, warm (the full MPCC) and active-set solves of a re-plan of 2 of 3 steps:
+    every output (commands, poses, objective, variables, bound multipliers) equal."""
+    spec = _spec(x=9e-4, y=4e-4)
+    planner = ReducedPlanner(STEEL, spec)
+    seen = []
+    for program in (planner._cold, planner._warm, planner._smooth):
+        solve = program.solve
+
+        def recorded(values, guess, m, solve=solve, program=program):
+            out = solve(values, guess, m)
+            seen.append((program, dict(values), {k: np.array(v) for k, v in guess.items()}, out))
+            return out
+
+        monkeypatch.setattr(program, "solve", recorded)
+    first = planner.solve()
+    planner.retarget(dataclasses.replace(spec, target=(8e-4, 4.2e-4, 0.0), steps=2), initial_lag=(1e-4, 0.0, 0.0))
+    planner.solve(warm=first)
+    planner.active_set = False
+    planner.solve(warm=first)
+    assert {id(p) for p, *_ in seen} == {id(planner._cold), id(planner._warm), id(planner._smooth)}
+    for program, values, guess, out in seen:
+        reference = _opti_outputs(program, values, guess)
+        K, d = program.K, program.d
+        parts = np.split(reference, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K, K]))
+        m = out.commands.shape[0]
+        assert np.array_equal(out.commands, parts[0].reshape(K, 3)[:m])
+        assert np.array_equal(out.lower, parts[1].reshape(K + 1, 3)[:m + 1])
+        assert out.objective == parts[3][0]
+        assert np.array_equal(out.variables["sigma"].ravel(), parts[6])
+        assert out.success and out.iterations == program.opti.stats()["iter_count"]
