@@ -53,3 +53,20 @@ def test_the_nlp_through_its_nlpsol_equals_opti_solve_bit_for_bit(monkeypatch):
         assert out.objective == parts[3][0]
         assert np.array_equal(out.variables["sigma"].ravel(), parts[6])
         assert out.success and out.iterations == program.opti.stats()["iter_count"]
+
+
+def test_the_local_newton_matrix_factors_are_scipys_bit_for_bit():
+    """LAPACK called directly (:func:`factorise_newton_matrix`, :func:`lu_step`) gives what
+    ``scipy.linalg.lu_factor`` / ``lu_solve`` give; an exactly singular matrix has no factors."""
+    import scipy.linalg as sla
+
+    from fe_contact.contact.alart_curnier import factorise_newton_matrix, lu_step
+
+    rng = np.random.default_rng(3)
+    J, b = rng.normal(size=(147, 147)), rng.normal(size=147)
+    lu = factorise_newton_matrix(J.copy())
+    reference = sla.lu_factor(J.copy().T, check_finite=False)
+    assert np.array_equal(lu[0], reference[0]) and np.array_equal(lu[1], reference[1])
+    assert np.array_equal(lu_step(lu, b), sla.lu_solve(reference, b, trans=1, check_finite=False))
+    J[:, 5] = 0.0
+    assert factorise_newton_matrix(J) is None

@@ -121,14 +121,23 @@ def well_conditioned(A) -> bool:
 def factorise_newton_matrix(J):
     """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
     singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
-    place: no copy.  Solve with :func:`lu_step`."""
+    place: no copy.  Solve with :func:`lu_step`.  LAPACK's ``dgetrf`` / ``dgetrs``
+    are called directly, as ``scipy.linalg.lu_factor`` / ``lu_solve`` call them
+    (the same numbers) without their wrappers' checks, which cost as much as the
+    factorisation at a planning mesh's order 147."""
     with dense_kernel(J.shape[0]):
-        lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
-    if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
+        lu, piv, info = _getrf(J.T, overwrite_a=True)
+    if info < 0 or not np.isfinite(lu).all() or (np.diagonal(lu) == 0.0).any():
         return None
     return lu, piv
 
 
 def lu_step(lu, rhs):
     """``J^-1 rhs`` from the factors of ``J^T`` (:func:`factorise_newton_matrix`)."""
-    return sla.lu_solve(lu, rhs, trans=1, check_finite=False)
+    x, info = _getrs(lu[0], lu[1], rhs, trans=1)
+    if info != 0:
+        raise ValueError(f"dgetrs: illegal value in argument {-info}")
+    return x
+
+
+_getrf, _getrs = sla.get_lapack_funcs(("getrf", "getrs"), dtype=np.float64)
