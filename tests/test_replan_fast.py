@@ -70,3 +70,31 @@ def test_the_local_newton_matrix_factors_are_scipys_bit_for_bit():
     assert np.array_equal(lu_step(lu, b), sla.lu_solve(reference, b, trans=1, check_finite=False))
     J[:, 5] = 0.0
     assert factorise_newton_matrix(J) is None
+
+
+def test_a_small_factor_solves_in_one_dense_triangle_as_part_by_part(monkeypatch):
+    """Below ``DENSE_SOLVE_ORDER`` free dofs the substitutions use the factor's blocks
+    gathered into one dense triangle: the solutions of the part-by-part substitution (and
+    of ``K_ff`` itself) to rounding, with several right-hand sides and the contact split
+    of :meth:`Tangent.solve_with_contact` (forward, root block, backward)."""
+    from fe_contact.linalg import cholesky
+    from test_cholesky import model_of, tangent_of
+
+    model = model_of((6, 6, 2))  # a planning mesh: 294 free dofs
+    rng = np.random.default_rng(5)
+    K = tangent_of(model, 1e-4 * rng.standard_normal((model.mesh.n_nodes, 3)))
+    free = model.free_dofs
+    assert free.size <= cholesky.DENSE_SOLVE_ORDER
+    B = rng.standard_normal((free.size, 3))
+    dense = cholesky.factorise(model.factor_structure, K.data)
+    X = dense.solve(B)
+    assert dense._dense is not None
+    y = dense.forward(B[:, 0])
+    monkeypatch.setattr(cholesky, "DENSE_SOLVE_ORDER", 0)
+    parts = cholesky.factorise(model.factor_structure, K.data)
+    Y = parts.solve(B)
+    assert parts._dense is None
+    scale = np.abs(X).max()
+    np.testing.assert_allclose(X, Y, rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(K[free][:, free] @ X, B, rtol=0, atol=1e-9 * np.abs(B).max())
+    np.testing.assert_allclose(y, parts.forward(B[:, 0]), rtol=0, atol=1e-13 * np.abs(y).max())
