@@ -98,3 +98,18 @@ def test_a_small_factor_solves_in_one_dense_triangle_as_part_by_part(monkeypatch
     np.testing.assert_allclose(X, Y, rtol=0, atol=1e-13 * scale)
     np.testing.assert_allclose(K[free][:, free] @ X, B, rtol=0, atol=1e-9 * np.abs(B).max())
     np.testing.assert_allclose(y, parts.forward(B[:, 0]), rtol=0, atol=1e-13 * np.abs(y).max())
+
+
+def test_the_compiled_newton_matrix_is_the_einsum_formula_bit_for_bit():
+    """``blockdiag(P) + blockdiag(Q) D W D`` of the compiled pass equals numpy's einsum, then
+    ``* d``, then ``P`` on the diagonal blocks, bit for bit (the same products and sums)."""
+    from fe_contact.contact.alart_curnier import newton_matrix
+
+    rng = np.random.default_rng(11)
+    n = 7
+    P, Q = rng.normal(size=(n, 3, 3)), rng.normal(size=(n, 3, 3))
+    W, d = rng.normal(size=(3 * n, 3 * n)), rng.uniform(0.5, 2.0, 3 * n)
+    J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, 3 * n)).reshape(3 * n, 3 * n) * d
+    for c in range(n):
+        J[3 * c:3 * c + 3, 3 * c:3 * c + 3] += P[c]
+    assert np.array_equal(newton_matrix(P, Q, W, d), J)

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..linalg.threads import dense_kernel
-from ._kernels import _ac_kernel  # compiled: the per-contact rest of F and its blocks (_kernels.pyx)
+from ._kernels import _ac_kernel, _newton_matrix_kernel  # compiled (_kernels.pyx)
 
 
 def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
@@ -49,14 +49,12 @@ def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
 
 
 def newton_matrix(P, Q, W, d) -> np.ndarray:
-    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n)."""
-    n = P.shape[0]
-    m = 3 * n
-    J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, m)).reshape(m, m)
-    J *= d
-    blocks = J.reshape(n, 3, n, 3)
-    idx = np.arange(n)
-    blocks[idx, :, idx, :] += P
+    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n), C order: row
+    ``3 c + i`` is ``(sum_j Q[c, i, j] d_j W[3 c + j, :]) d``, ``P[c]`` added to its diagonal
+    block, in one compiled pass (:func:`_newton_matrix_kernel`)."""
+    m = 3 * P.shape[0]
+    J = np.empty((m, m))
+    _newton_matrix_kernel(P, Q, np.ascontiguousarray(W, dtype=float), np.ascontiguousarray(d, dtype=float), J)
     return J
 
 
