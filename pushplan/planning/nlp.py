@@ -292,38 +292,54 @@ class _Program:
         opti.solver("ipopt", options)  # Opti's own solve is the reference (tests/test_replan_fast.py)
         self.opti, self.par, self.variables, self.K, self.d = opti, par, {"A": A, "rho": rho, "sigma": sigma}, K, d
         # every output in one vector: one evaluation per solve (column-major blocks)
-        self.outputs = outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma,
-                            *(opti.dual(c) for c in self.fixed))
-        # Opti transcribes; a solve calls ipopt through this nlpsol of Opti's own problem
-        # (x, p, f, g, the bounds lbg / ubg), without Opti's per-solve work (setting values,
-        # the bounds and the outputs through helper functions built at every call): the same
-        # ipopt run on the same numbers, 2-3 ms less a solve (benchmarks/replan_phases.py)
-        self.solver = ca.nlpsol("nlp", "ipopt", {"x": opti.x, "p": opti.p, "f": opti.f, "g": opti.g},
-                                options | {"error_on_fail": False})
-        self._bounds = ca.Function("bounds", [opti.p], [opti.lbg, opti.ubg])
-        self._outputs = ca.Function("outputs", [opti.x, opti.p, opti.lam_g], [outputs])
-        self._p_order = _layout(ca, list(par.values()), opti.p)
-        self._x_order = _layout(ca, list(self.variables.values()), opti.x)
-        self._lam_g0 = np.zeros(opti.ng)  # as Opti: ipopt's multipliers start at zero
+        self.outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma,
+                                 *(opti.dual(c) for c in self.fixed))
+        # Opti transcribes; a solve calls ipopt through an nlpsol of Opti's own problem (x, p,
+        # f, g, the bounds lbg / ubg) and two functions, all built at the first solve (as Opti
+        # builds its own), without Opti's per-solve work (setting values, the bounds and the
+        # outputs through helper functions built at every call): the same ipopt run
+        self._options, self._compiled = options | {"error_on_fail": False}, None
+
+    @property
+    def solver(self):
+        """The nlpsol of the transcription (built at the first use)."""
+        return self._compile()[0]
+
+    def _compile(self) -> tuple:
+        """``(nlpsol, bounds(p) -> (lbg, ubg), outputs(x, p, lam_g), p order, x order, lam_g0)``,
+        built once."""
+        if self._compiled is None:
+            import casadi as ca
+
+            opti = self.opti
+            self._compiled = (
+                ca.nlpsol("nlp", "ipopt", {"x": opti.x, "p": opti.p, "f": opti.f, "g": opti.g}, self._options),
+                ca.Function("bounds", [opti.p], [opti.lbg, opti.ubg]),
+                ca.Function("outputs", [opti.x, opti.p, opti.lam_g], [self.outputs]),
+                _layout(ca, list(self.par.values()), opti.p), _layout(ca, list(self.variables.values()), opti.x),
+                np.zeros(opti.ng),  # as Opti: ipopt's multipliers start at zero
+            )
+        return self._compiled
 
     def solve(self, values: dict, guess: dict, m: int) -> NlpSolution:
         """Solve with parameter ``values`` (every parameter by name) from ``guess`` (variables
         by name), ``m`` active steps."""
-        p = _packed([values[name] for name in self.par], self._p_order)
-        lbg, ubg = self._bounds(p)
-        x0 = _packed([guess[name] for name in self.variables], self._x_order)
+        solver, bounds, outputs, p_order, x_order, lam_g0 = self._compile()
+        p = _packed([values[name] for name in self.par], p_order)
+        lbg, ubg = bounds(p)
+        x0 = _packed([guess[name] for name in self.variables], x_order)
         t0 = time.perf_counter()
         failure = None
         with interrupts_kept():
             try:  # ipopt's failure is its last iterate (error_on_fail False; a Ctrl-C is raised after)
-                res = self.solver(x0=x0, p=p, lbg=lbg, ubg=ubg, lam_g0=self._lam_g0)
+                res = solver(x0=x0, p=p, lbg=lbg, ubg=ubg, lam_g0=lam_g0)
             except RuntimeError as e:  # a Ctrl-C inside ipopt, raised after the block; else CasADi's error
                 failure = e
         if failure is not None:
             raise failure
         wall = time.perf_counter() - t0
-        stats = self.solver.stats()
-        out, K, d = np.asarray(self._outputs(res["x"], p, res["lam_g"]), float).ravel(), self.K, self.d
+        stats = solver.stats()
+        out, K, d = np.asarray(outputs(res["x"], p, res["lam_g"]), float).ravel(), self.K, self.d
         parts = np.split(out, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K, K]))
         return NlpSolution(
             commands=parts[0].reshape(K, 3)[:m].copy(),
