@@ -22,17 +22,51 @@ INSIDE_THE_NLP = """
 import signal, sys
 import casadi
 from pushplan.cli import main
+from pushplan.planning import nlp
 
-solves = [0]
-real_solve = casadi.Opti.solve
+at = [0, 0]  # the NLP solve under way (from 1) and ipopt's iteration in it
+real_solve, real_nlpsol = nlp._Program.solve, casadi.nlpsol
 
-def solve(self):
-    solves[0] += 1
-    if solves[0] == {solve}:  # Ctrl-C at ipopt's iteration {iteration} of this solve
-        self.callback(lambda i: signal.raise_signal(signal.SIGINT) if i == {iteration} else None)
-    return real_solve(self)
 
-casadi.Opti.solve = solve
+class Hook(casadi.Callback):  # ipopt's iteration callback: Ctrl-C at iteration {iteration} of solve {solve}
+    def __init__(self, sizes):
+        casadi.Callback.__init__(self)
+        self.sizes = sizes
+        self.construct("ctrl_c", {{}})
+
+    def get_n_in(self):
+        return casadi.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return casadi.nlpsol_out(i)
+
+    def get_sparsity_in(self, i):
+        return casadi.Sparsity.dense(self.sizes[casadi.nlpsol_out(i)], 1)
+
+    def eval(self, arg):
+        if at == [{solve}, {iteration}]:
+            signal.raise_signal(signal.SIGINT)
+        at[1] += 1
+        return [0]
+
+
+def nlpsol(name, plugin, problem, options):
+    nx, ng, np_ = (problem[k].numel() for k in ("x", "g", "p"))
+    hook = Hook({{"x": nx, "f": 1, "g": ng, "lam_x": nx, "lam_g": ng, "lam_p": np_}})
+    solver = real_nlpsol(name, plugin, problem, dict(options, iteration_callback=hook))
+    solver.hook = hook  # alive as long as the solver
+    return solver
+
+
+def solve(self, *args):
+    at[:] = [at[0] + 1, 0]
+    return real_solve(self, *args)
+
+
+casadi.nlpsol, nlp._Program.solve = nlpsol, solve
 sys.exit(main(sys.argv[1:]))
 """
 

@@ -268,3 +268,30 @@ def _gauss_seidel_sweeps(const double[:, ::1] W, const double[:, :] q, const dou
                 _project_one(r[c, 0] - rc * (u0 + hypot(mx[c] * u1, my[c] * u2)), r[c, 1] - rc * u1,
                              r[c, 2] - rc * u2, mx[c], my[c], p)
                 r[c, 0], r[c, 1], r[c, 2] = p[0], p[1], p[2]
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def _newton_matrix_kernel(const double[:, :, ::1] P, const double[:, :, ::1] Q, const double[:, ::1] W,
+                          const double[::1] d, double[:, ::1] J):
+    """The Newton matrix ``J = blockdiag(P) + blockdiag(Q) D W D`` (3 n, 3 n) into ``J``, from
+    ``P``, ``Q`` (n, 3, 3), ``W`` (3 n, 3 n) and ``d`` (3 n,) (``D = diag(d)``): row ``3 c + i``
+    is ``(sum_j Q[c, i, j] d[3 c + j] W[3 c + j, :]) * d``, then ``P[c]`` added to its
+    diagonal block.  The products and sums in the order of ``numpy.einsum("cij,cjm->cim")``
+    then ``*= d`` (:func:`fe_contact.contact.alart_curnier.newton_matrix`), without its
+    temporaries: one pass over ``W`` instead of four."""
+    cdef Py_ssize_t n = P.shape[0], m = 3 * P.shape[0], c, i, j, k, row
+    cdef double q0, q1, q2
+    if Q.shape[0] != n or W.shape[0] != m or W.shape[1] != m or d.shape[0] != m or J.shape[0] != m or J.shape[1] != m:
+        raise ValueError("_newton_matrix_kernel: P, Q (n, 3, 3), W and J (3 n, 3 n), d (3 n,)")
+    with nogil:
+        for c in range(n):
+            for i in range(3):
+                row = 3 * c + i
+                q0 = Q[c, i, 0] * d[3 * c]
+                q1 = Q[c, i, 1] * d[3 * c + 1]
+                q2 = Q[c, i, 2] * d[3 * c + 2]
+                for k in range(m):
+                    J[row, k] = (q0 * W[3 * c, k] + q1 * W[3 * c + 1, k] + q2 * W[3 * c + 2, k]) * d[k]
+                for j in range(3):
+                    J[row, 3 * c + j] += P[c, i, j]

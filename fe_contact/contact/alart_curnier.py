@@ -24,7 +24,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..linalg.threads import dense_kernel
-from ._kernels import _ac_kernel  # compiled: the per-contact rest of F and its blocks (_kernels.pyx)
+from ._kernels import _ac_kernel, _newton_matrix_kernel  # compiled (_kernels.pyx)
 
 
 def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
@@ -49,14 +49,12 @@ def alart_curnier(s, W, d, qs, mu, rho, fixed, jacobian=True):
 
 
 def newton_matrix(P, Q, W, d) -> np.ndarray:
-    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n)."""
-    n = P.shape[0]
-    m = 3 * n
-    J = np.einsum("cij,cjm->cim", Q * d.reshape(n, 1, 3), W.reshape(n, 3, m)).reshape(m, m)
-    J *= d
-    blocks = J.reshape(n, 3, n, 3)
-    idx = np.arange(n)
-    blocks[idx, :, idx, :] += P
+    """The dense Jacobian ``blockdiag(P) + blockdiag(Q) D W D``, (3n, 3n), C order: row
+    ``3 c + i`` is ``(sum_j Q[c, i, j] d_j W[3 c + j, :]) d``, ``P[c]`` added to its diagonal
+    block, in one compiled pass (:func:`_newton_matrix_kernel`)."""
+    m = 3 * P.shape[0]
+    J = np.empty((m, m))
+    _newton_matrix_kernel(P, Q, np.ascontiguousarray(W, dtype=float), np.ascontiguousarray(d, dtype=float), J)
     return J
 
 
@@ -121,14 +119,23 @@ def well_conditioned(A) -> bool:
 def factorise_newton_matrix(J):
     """LU factors of the (C-ordered) Newton matrix ``J``, or None if it is exactly
     singular.  LAPACK factorises ``J^T``, which is ``J`` in Fortran order, in
-    place: no copy.  Solve with :func:`lu_step`."""
+    place: no copy.  Solve with :func:`lu_step`.  LAPACK's ``dgetrf`` / ``dgetrs``
+    are called directly, as ``scipy.linalg.lu_factor`` / ``lu_solve`` call them
+    (the same numbers) without their wrappers' checks, which cost as much as the
+    factorisation at a planning mesh's order 147."""
     with dense_kernel(J.shape[0]):
-        lu, piv = sla.lu_factor(J.T, overwrite_a=True, check_finite=False)
-    if not np.all(np.isfinite(lu)) or np.any(np.diag(lu) == 0.0):
+        lu, piv, info = _getrf(J.T, overwrite_a=True)
+    if info < 0 or not np.isfinite(lu).all() or (np.diagonal(lu) == 0.0).any():
         return None
     return lu, piv
 
 
 def lu_step(lu, rhs):
     """``J^-1 rhs`` from the factors of ``J^T`` (:func:`factorise_newton_matrix`)."""
-    return sla.lu_solve(lu, rhs, trans=1, check_finite=False)
+    x, info = _getrs(lu[0], lu[1], rhs, trans=1)
+    if info != 0:
+        raise ValueError(f"dgetrs: illegal value in argument {-info}")
+    return x
+
+
+_getrf, _getrs = sla.get_lapack_funcs(("getrf", "getrs"), dtype=np.float64)

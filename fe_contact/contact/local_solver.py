@@ -28,6 +28,7 @@ Methods
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from numbers import Integral, Real
 
@@ -158,15 +159,23 @@ def natural_map_residual(r, u, q, mu_x, mu_y) -> float:
 
 
 def _natural_map(r, u, q, mx, my) -> float:
-    """:func:`natural_map_residual` with checked coefficient arrays (inner loops)."""
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(u))):
+    """:func:`natural_map_residual` with checked coefficient arrays (inner loops): twice a
+    local Newton step, so with as few numpy calls as it takes (the norms as
+    ``np.linalg.norm`` computes them, ``sqrt(x . x)``)."""
+    if not (np.isfinite(r).all() and np.isfinite(u).all()):
         return float("inf")
     with np.errstate(over="ignore", invalid="ignore"):
-        res = np.linalg.norm(r - _project(r - _modified(u, mx, my), mx, my))
-        scale = max(np.linalg.norm(q), np.linalg.norm(r), np.linalg.norm(u))
-    if not np.isfinite(scale):
+        res = _norm(r - _project(r - _modified(u, mx, my), mx, my))
+        scale = max(_norm(q), _norm(r), _norm(u))
+    if not math.isfinite(scale):
         return float("inf")
     return float(res / scale) if scale > 0 else float(res)
+
+
+def _norm(a: np.ndarray) -> float:
+    """The 2-norm of ``a``'s entries, as ``np.linalg.norm(a)`` (``sqrt`` of the dot product)."""
+    x = a.ravel()
+    return math.sqrt(x.dot(x))
 
 
 def _validate(W, q, mu_x, mu_y, r0):
@@ -333,7 +342,7 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None, st
         # the operator and its scaling: D W D itself, regularised, or W and d
         Wp, dp = (Ws + eta * np.eye(3 * n), np.ones_like(d)) if eta > 0 else (W, d)
         ac = (Wp, dp, qs - eta * s, mu, rho, fixed)  # the Alart-Curnier problem of this round
-        F = alart_curnier(s, *ac, jacobian=False)
+        F, P, Q = alart_curnier(s, *ac)
         psi = 0.5 * float(F.ravel() @ F.ravel())
         # LU factors of a Newton matrix of this Wp, not necessarily taken at s
         lu = keep.lu if keep is not None else None
@@ -342,8 +351,8 @@ def _newton(W, q, mx, my, r, tol, max_iter, assume_spd=False, workspace=None, st
             if it >= max_iter:
                 break
             merits.append(psi)
-            step, lu = _newton_direction(s, F, ac, lu, keep)
-            s, F, psi = _line_search(s, step, psi, max(merits[-_NONMONOTONE_MEMORY:]), ac)
+            step, lu = _newton_direction(F, P, Q, ac, lu, keep)
+            s, (F, P, Q), psi = _line_search(s, step, psi, max(merits[-_NONMONOTONE_MEMORY:]), ac)
             it += 1
             residual = true_residual(s)
             history.append(residual)
@@ -394,9 +403,10 @@ def _isotropic_scaling(W, mx, my):
     return D, mu, fixed, rho, w_ref
 
 
-def _newton_direction(s, F, ac, lu, keep):
+def _newton_direction(F, P, Q, ac, lu, keep):
     """Semismooth Newton direction (n, 3) at ``s`` for the Alart-Curnier
-    problem ``ac``, and the LU factors to precondition the next one.
+    problem ``ac``, ``F, P, Q`` its :func:`alart_curnier` at ``s``, and the LU
+    factors to precondition the next one.
 
     With ``lu`` (factors of an older Newton matrix) a Krylov step: GMRES on
     the generalised Jacobian at ``s``, applied without forming it (O(n^2) a
@@ -405,10 +415,9 @@ def _newton_direction(s, F, ac, lu, keep):
     factors usually make GMRES converge in a few products, where a new LU
     costs O(n^3).  Otherwise, or if GMRES fails, a new LU (kept in ``keep``).
     """
-    n = s.shape[0]
+    n = F.shape[0]
     Wp, dp = ac[0], ac[1]
     step = None
-    _, P, Q = alart_curnier(s, *ac)
     if lu is not None and 3 * n >= _KRYLOV_MIN_ORDER:
         step = gmres(lambda v: jacobian_product(P, Q, Wp, dp, v), -F.ravel(),
                      lambda v: lu_step(lu, v), _KRYLOV_RTOL, _KRYLOV_MAX_ITER)
@@ -433,12 +442,15 @@ def _newton_direction(s, F, ac, lu, keep):
 
 def _line_search(s, step, psi, ref, ac):
     """Non-monotone Armijo backtracking on ``psi = |F|^2 / 2`` against the
-    reference merit ``ref`` (the largest of the last few): the new ``s``, ``F``, ``psi``."""
+    reference merit ``ref`` (the largest of the last few): the new ``s``, its
+    :func:`alart_curnier` ``(F, P, Q)`` (the blocks for the next direction: the
+    compiled kernel gives them at the cost of ``F`` alone) and ``psi``."""
     alpha = 1.0
     while True:
         s_try = s + alpha * step
-        F_try = alart_curnier(s_try, *ac, jacobian=False)
+        ac_try = alart_curnier(s_try, *ac)
+        F_try = ac_try[0]
         psi_try = 0.5 * float(F_try.ravel() @ F_try.ravel())
         if psi_try <= ref - 2.0 * _ARMIJO_SIGMA * alpha * psi or alpha <= _MIN_STEP:
-            return s_try, F_try, psi_try
+            return s_try, ac_try, psi_try
         alpha *= 0.5

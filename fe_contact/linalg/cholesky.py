@@ -209,6 +209,15 @@ def _symbolic_parts(starts: np.ndarray, pos, er, ec, bounds):
     return boundary, fronts, source, target, parent, nnz, flops
 
 
+DENSE_SOLVE_ORDER = 600
+"""At most this many free dofs (a planning mesh: 294 at 6 x 6 x 2), :meth:`SupernodalFactor.forward`
+and :meth:`~SupernodalFactor.backward` substitute with the factor's blocks gathered into one dense
+triangle (elimination order, built once per factor, 2.9 MB at this order), one BLAS call each way,
+instead of a part at a time: the loop over the parts (a triangular solve, a product and an indexed
+update each) costs more in calls than in arithmetic at this size.  The same ``L``; the sums of a
+substitution in another order (rounding)."""
+
+
 class SupernodalFactor:
     """Numerical factor ``K_ff = L L^T`` (elimination order) and the Schur
     complement onto the contact dofs, from :func:`factorise`."""
@@ -217,6 +226,20 @@ class SupernodalFactor:
         self.structure = structure
         self._diagonal = diagonal  # per part: lower Cholesky factor of its pivot block (p, p), Fortran
         self._below = below  # per part: the factor rows of its boundary (q, p), Fortran
+        self._dense = None  # the whole L, dense (n_free <= DENSE_SOLVE_ORDER), built at the first solve
+
+    def _dense_factor(self) -> np.ndarray | None:
+        """``L`` (n_free, n_free), lower, Fortran, in elimination order, or None above
+        :data:`DENSE_SOLVE_ORDER`."""
+        st = self.structure
+        if self._dense is None and st.perm.size <= DENSE_SOLVE_ORDER:
+            L = np.zeros((st.perm.size,) * 2, order="F")
+            for s in range(st.n_parts):  # a few parts (4 on a planning mesh), once per factor
+                a, b = st.starts[s], st.starts[s + 1]
+                L[a:b, a:b] = self._diagonal[s]  # dpotrf's lower factor, its upper triangle zeroed
+                L[st.boundary[s], a:b] = self._below[s]
+            self._dense = L
+        return self._dense
 
     @property
     def nnz(self) -> int:
@@ -235,6 +258,9 @@ class SupernodalFactor:
         st = self.structure
         rhs = np.asarray(rhs, dtype=float)
         x = rhs[st.perm].reshape(rhs.shape[0], -1)
+        L = self._dense_factor()
+        if L is not None:
+            return _triangular_solve(L, x)
         starts = st.starts
         for s in range(st.n_parts):  # L y = b
             a, b = starts[s], starts[s + 1]
@@ -249,7 +275,10 @@ class SupernodalFactor:
         in free-dof order, shape (n_free, k)."""
         st = self.structure
         x, starts = y, st.starts
-        for s in range(st.n_parts - 1, -1, -1):  # L^T x = y
+        L = self._dense_factor()
+        if L is not None:
+            x = _triangular_solve(L, x, transposed=True)
+        for s in range(st.n_parts - 1, -1, -1) if L is None else ():  # L^T x = y
             a, b = starts[s], starts[s + 1]
             y = x[a:b]
             if st.boundary[s].size:

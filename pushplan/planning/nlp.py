@@ -107,8 +107,8 @@ class NlpSolution:
 
 class ReducedPlanner:
     """The planning NLP on the reduced model, built once for ``spec.steps`` = K steps;
-    re-solved with new parameter values (CasADi ``Opti`` + ipopt, ``set_value`` /
-    ``set_initial``, never rebuilt).
+    re-solved with new parameter values (transcribed by CasADi ``Opti``, solved by ipopt
+    through the nlpsol of that transcription, never rebuilt).
 
     Per step k: the unit direction ``a_k`` of the generalised drive force on the
     limit surface (orthotropy frame, scaled by the friction limits), its level
@@ -289,28 +289,57 @@ class _Program:
         if spec.yaw_targeted:
             objective += (final[2] - par["target"][2]) ** 2 * w[1]
         opti.minimize(objective + pinned)
-        opti.solver("ipopt", options)
+        opti.solver("ipopt", options)  # Opti's own solve is the reference (tests/test_replan_fast.py)
         self.opti, self.par, self.variables, self.K, self.d = opti, par, {"A": A, "rho": rho, "sigma": sigma}, K, d
         # every output in one vector: one evaluation per solve (column-major blocks)
         self.outputs = ca.veccat(ca.horzcat(*cmds), ca.horzcat(*lower), ca.horzcat(*upper), objective, A, rho, sigma,
                                  *(opti.dual(c) for c in self.fixed))
+        # Opti transcribes; a solve calls ipopt through an nlpsol of Opti's own problem (x, p,
+        # f, g, the bounds lbg / ubg) and two functions, all built at the first solve (as Opti
+        # builds its own), without Opti's per-solve work (setting values, the bounds and the
+        # outputs through helper functions built at every call): the same ipopt run
+        self._options, self._compiled = options | {"error_on_fail": False}, None
+
+    @property
+    def solver(self):
+        """The nlpsol of the transcription (built at the first use)."""
+        return self._compile()[0]
+
+    def _compile(self) -> tuple:
+        """``(nlpsol, bounds(p) -> (lbg, ubg), outputs(x, p, lam_g), p order, x order, lam_g0)``,
+        built once."""
+        if self._compiled is None:
+            import casadi as ca
+
+            opti = self.opti
+            self._compiled = (
+                ca.nlpsol("nlp", "ipopt", {"x": opti.x, "p": opti.p, "f": opti.f, "g": opti.g}, self._options),
+                ca.Function("bounds", [opti.p], [opti.lbg, opti.ubg]),
+                ca.Function("outputs", [opti.x, opti.p, opti.lam_g], [self.outputs]),
+                _layout(ca, list(self.par.values()), opti.p), _layout(ca, list(self.variables.values()), opti.x),
+                np.zeros(opti.ng),  # as Opti: ipopt's multipliers start at zero
+            )
+        return self._compiled
 
     def solve(self, values: dict, guess: dict, m: int) -> NlpSolution:
-        """Solve with parameter ``values`` from ``guess`` (variables by name), ``m`` active steps."""
-        opti = self.opti
-        for name, value in values.items():
-            opti.set_value(self.par[name], value)
-        for name, x in self.variables.items():
-            opti.set_initial(x, guess[name])
+        """Solve with parameter ``values`` (every parameter by name) from ``guess`` (variables
+        by name), ``m`` active steps."""
+        solver, bounds, outputs, p_order, x_order, lam_g0 = self._compile()
+        p = _packed([values[name] for name in self.par], p_order)
+        lbg, ubg = bounds(p)
+        x0 = _packed([guess[name] for name in self.variables], x_order)
         t0 = time.perf_counter()
+        failure = None
         with interrupts_kept():
-            try:
-                sol = opti.solve()
-            except RuntimeError:  # ipopt's failure: its last iterate (a Ctrl-C is raised after)
-                sol = opti.debug
+            try:  # ipopt's failure is its last iterate (error_on_fail False; a Ctrl-C is raised after)
+                res = solver(x0=x0, p=p, lbg=lbg, ubg=ubg, lam_g0=lam_g0)
+            except RuntimeError as e:  # a Ctrl-C inside ipopt, raised after the block; else CasADi's error
+                failure = e
+        if failure is not None:
+            raise failure
         wall = time.perf_counter() - t0
-        stats = opti.stats()
-        out, K, d = np.asarray(sol.value(self.outputs), float).ravel(), self.K, self.d
+        stats = solver.stats()
+        out, K, d = np.asarray(outputs(res["x"], p, res["lam_g"]), float).ravel(), self.K, self.d
         parts = np.split(out, np.cumsum([3 * K, 3 * (K + 1), 3 * (K + 1), 1, d * K, K, K]))
         return NlpSolution(
             commands=parts[0].reshape(K, 3)[:m].copy(),
@@ -325,6 +354,24 @@ class _Program:
                        "sigma": parts[6][None, :].copy()},
             bound_multipliers=_net_multipliers(parts[7], K) if self.fixed else None,
         )
+
+
+def _layout(ca, symbols: list, vector) -> np.ndarray:
+    """Where the entries of ``vector`` (Opti's ``x`` or ``p``, its symbols stacked) come
+    from: indices into the column-major entries of ``symbols`` laid end to end."""
+    sizes = [s.numel() for s in symbols]
+    starts = np.cumsum([0, *sizes])
+    numbered = [ca.DM(np.arange(a, a + n, dtype=float).reshape(s.shape, order="F"))
+                for a, n, s in zip(starts[:-1], sizes, symbols, strict=True)]
+    order = np.asarray(ca.Function("layout", symbols, [vector])(*numbered), float).ravel()
+    if sorted(order) != list(range(int(starts[-1]))):
+        raise AssertionError("Opti's vector is not its symbols stacked")
+    return order.astype(int)
+
+
+def _packed(arrays: list, order: np.ndarray) -> np.ndarray:
+    """The arrays' column-major entries laid end to end, in Opti's ``order`` (:func:`_layout`)."""
+    return np.concatenate([np.ravel(np.asarray(a, float), order="F") for a in arrays])[order]
 
 
 def _net_multipliers(duals: np.ndarray, K: int) -> np.ndarray:
