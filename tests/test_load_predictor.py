@@ -4,8 +4,8 @@ Newton loop from the last load step's path extrapolated in the pad's load
 the same rest pose to the Newton tolerance, in fewer Newton iterations; a guess that
 misleads the loop costs a second loop from the start, never the step.  The block of
 benchmarks/release_refinement.py (40 x 30 x 20 mm, 3 x 2 x 2), a pad 0.3 x the floor's
-friction (measured: 53 / 57 midpoint and 44 / 48 backward-Euler Newton iterations with /
-without the predictor, rest poses 4.7e-10 and 4.4e-10 of the lag apart)."""
+friction (measured: 55 / 57 midpoint and 46 / 48 backward-Euler Newton iterations with /
+without the predictor, rest poses 2.1e-11 and 1.2e-11 of the lag apart)."""
 
 import dataclasses
 import math
@@ -22,9 +22,9 @@ FLOOR = (0.6, 0.2, math.radians(20.0))
 PUSH = Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))
 SAME_REST = 2e-8
 """Rest poses with and without the predictor differ by at most this fraction of the loaded lag (Newton tolerance
-1e-10; measured 4.7e-10 and 4.4e-10)."""
-BOUND = {"midpoint": 54, "backward_euler": 46}
-"""The release's Newton iterations at most (measured 53 and 44 with the predictor, 57 and 48 from each step's start)."""
+1e-10; measured 2.1e-11 and 1.2e-11)."""
+BOUND = {"midpoint": 56, "backward_euler": 47}
+"""The release's Newton iterations at most (measured 55 and 46 with the predictor, 57 and 48 from each step's start)."""
 
 
 @pytest.fixture(scope="module")

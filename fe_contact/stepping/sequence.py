@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from .command import PadLoad
 from .model import Model, State, StepReport, initial_state
 from .pad_load import pad_normal_load
 from .predictor import load_path_guess
 from .release import Release, ReleaseSchedule, rest_check
-from .midpoint import extrapolated, midpoint_half, two_halves
+from .midpoint import closed_contacts, extrapolated, midpoint_half, two_halves
 from .step import step
 
 
@@ -111,11 +113,15 @@ class StepSequence:
 
     def _load_guess(self, start: State, load: float):
         """The start of a pad's load step from ``start`` to ``load`` (N): the last
-        load step's path, if it ended at ``start``, extrapolated in the load
+        load step's path, if it ended at ``start`` and no contact opened or closed
+        along it (the path is smooth in the load between contact changes, not
+        across one), extrapolated in the load
         (:func:`~fe_contact.stepping.predictor.load_path_guess`), else None."""
         if self._path is None or self._path[1] is not start:
             return None
         before, after = self._path
+        if np.any(closed_contacts(before.reaction) != closed_contacts(after.reaction)):
+            return None
         return load_path_guess(before, after, (pad_normal_load(self.model, before), pad_normal_load(self.model, after)),
                                load)
 
