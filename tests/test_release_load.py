@@ -30,7 +30,7 @@ def test_the_release_costs_no_more_newton_iterations_than_the_pushes(pad_mu):
     """The slippery pad (0.0065: the old height search had not finished after 25
     minutes) and a pad of the floor's friction, pressed 0.25 mm and pushed 3 x
     0.8 mm, released in 4 backward-Euler load steps: settled, N = W, at most the
-    pushes' Newton iterations (measured 23 / 29 and 36 / 39).  Not the defaults:
+    pushes' Newton iterations (measured 25 / 29 and 36 / 39; 23 / 29 and 36 / 39 before the load-path predictor).  Not the defaults:
     16 midpoint load steps cost 2.8 - 4.1 x the pushes' iterations
     (benchmarks/results/release_cost_16.json; issue 39's cost bound is not met there)."""
     m = issue_block(pad_mu)

@@ -26,7 +26,7 @@ from .model import Model, State, StepReport
 from .newton import Equilibrium
 from .pad_load import pad_normal_load
 
-__all__ = ["MIDPOINT_LOAD_TOL", "extrapolated", "midpoint_half", "missed_load", "two_halves"]
+__all__ = ["MIDPOINT_LOAD_TOL", "closed_contacts", "extrapolated", "midpoint_half", "missed_load", "two_halves"]
 
 MIDPOINT_LOAD_TOL = 1e-6
 """A half step whose pad load missed its target by more than this fraction of the load scale ended past a jump
@@ -79,7 +79,7 @@ def extrapolated(model: Model, state: State, command: PadLoad, middle: State, fi
     r = 2.0 * middle.reaction - state.reaction
     _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
     if missed_load(model, state, first, midpoint_half(model, state, command).load) \
-            or np.any(_closed(state.reaction) != _closed(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
+            or np.any(closed_contacts(state.reaction) != closed_contacts(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
         return None
     translation = 2.0 * middle.upper_translation - state.upper_translation
     rotation = 2.0 * middle.upper_rotation - state.upper_rotation
@@ -112,6 +112,6 @@ def _gripper_force(model: Model, state: State) -> np.ndarray:
     return np.asarray(model.gripper.stiffness, dtype=float) * (commanded - state.plate)
 
 
-def _closed(reaction: np.ndarray) -> np.ndarray:
+def closed_contacts(reaction: np.ndarray) -> np.ndarray:
     """Which contacts carry a normal force (above ``SEPARATION_FORCE`` of the largest force component)."""
     return reaction[:, 0] > SEPARATION_FORCE * np.abs(reaction).max()

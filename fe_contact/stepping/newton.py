@@ -99,7 +99,7 @@ def _timed(timings: dict, phase: str):
 
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
                 consume: bool = False, loading: Loading = NO_LOADING, gripper=None,
-                guess=None) -> Equilibrium:
+                guess=None, scale_at: np.ndarray | None = None) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
     the upper face at its commanded pose (``U`` may be updated in place).
 
@@ -113,9 +113,11 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     ``guess`` (:class:`~fe_contact.stepping.predictor.StepGuess`, ``U`` its start): its
     contact forces are the first ones (default ``state``'s) and its tangent, if it has
     one, is kept instead of ``state``'s; the step's force scale is the state's either
-    way (the same convergence test)."""
+    way (the same convergence test): taken at ``scale_at`` (n_nodes, 3), m, where
+    given (the start without the guess), else at ``U``."""
     loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper,
                        None if guess is None else guess.tangent)
+    loop.scale_at = scale_at
     r = np.array(state.reaction if guess is None else guess.reaction, dtype=float)
     for it in range(model.options.newton_max_iter + 1):
         mixed = loop.anderson is not None and loop.anderson.mixed  # no convergence test at a mix
@@ -170,6 +172,7 @@ class _Loop:
     K: object = None
     need_tangent: bool = False
     plain: bool = True
+    scale_at: np.ndarray | None = None
 
     @classmethod
     def start(cls, model, state, loading, consume, hook, gripper, tangent=None) -> "_Loop":
@@ -196,7 +199,8 @@ class _Loop:
         contact_world, f_contact = _contact_forces(model, r)
         if it == 0:  # with the state's contact forces, whatever the loop starts from
             f_start = _contact_forces(model, self.state.reaction)[1]
-            self.scale0 = _command_force_scale(model, self.state, U, f_start, self.loading)
+            at = U if self.scale_at is None else self.scale_at
+            self.scale0 = _command_force_scale(model, self.state, at, f_start, self.loading)
         R, self.rel_res = _out_of_balance(model, self.f_int, f_contact, contact_world, self.scale0)
         return R, f_contact, None
 

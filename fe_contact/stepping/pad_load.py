@@ -46,9 +46,9 @@ from .command import Command, PadLoad
 from .held import pad_loading, pad_motion
 from .law_check import checked
 from .measure import measure
-from .model import Model, State
+from .model import Model, State, Status
 from .newton import equilibrium
-from .predictor import commanded_pose, predictor
+from .predictor import commanded_pose, guessed_start
 
 __all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step", "pad_normal_load"]
 
@@ -361,20 +361,33 @@ class LoadDrive:
         return local, q + b * dh
 
 
-def load_step(model: Model, state: State, command, t0: float, local_problem_hook=None):
+def load_step(model: Model, state: State, command, t0: float, local_problem_hook=None, guess=None):
     """The Newton loop of a step with the pad's unknowns (a :class:`PadLoad`, or
     a compliant gripper's commanded pose) from ``state`` (the block where it
     is) and its report, whose ``command`` is the commanded motion the step
     found, ``gripper_force`` the spring force ``k (c - p)`` of a compliant
     gripper and ``plate`` its pose.  Returns ``(eq, report, translation,
-    rotation, plate)``, the commanded pose and the plate's."""
+    rotation, plate)``, the commanded pose and the plate's.
+
+    ``guess`` (a :class:`PadLoad`'s, :func:`~fe_contact.stepping.predictor.load_path_guess`)
+    starts the loop at its displacements, contact forces and pad height; the step's
+    force scale (its convergence test) is the one from the state; if the loop does
+    not converge from the guess, the step is solved again from the state (the
+    report counts both loops' iterations)."""
     lx, ly, lz = model.mesh.size
     current = pad_normal_load(model, state)
     target = command.load if isinstance(command, PadLoad) else 0.0
     drive = LoadDrive(model, state, command, max(target, current, model.weight), model.material.young * lx * ly / lz)
     loading = pad_loading(model, state)
-    U = np.array(state.displacement, dtype=float) if isinstance(command, PadLoad) else predictor(model, state, command)
-    eq = equilibrium(model, state, U, local_problem_hook, False, loading, drive)
+    guess = guess if isinstance(command, PadLoad) else None
+    U = guessed_start(model, state, command, guess)
+    if guess is not None and guess.height is not None:
+        drive.height = guess.height
+    eq = equilibrium(model, state, U, local_problem_hook, False, loading, drive, guess=guess,
+                     scale_at=None if guess is None else state.displacement)
+    if guess is not None and eq.status is not Status.CONVERGED:  # the guess misled it: from the state
+        again, report, *pose = load_step(model, state, command, t0, local_problem_hook)
+        return again, replace(report, newton_iterations=report.newton_iterations + len(eq.iterations)), *pose
     translation, c = drive.commanded_translation(), drive.commanded()
     taken = Command(*(translation - state.upper_translation), c[2] - state.upper_rotation) \
         if isinstance(command, PadLoad) else command

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .command import PadLoad
 from .model import Command, Model, State
 
 
@@ -106,11 +107,16 @@ class StepGuess:
     refreshes; a guess holding one keeps its factors alive).  Only where the Newton
     loop starts: the step converges to the same tolerances
     (``SolverOptions.newton_tol``, ``local_tol``), its convergence test unchanged.
+    A frictional pad's load step (:class:`~fe_contact.stepping.command.PadLoad`,
+    :func:`load_path_guess`) has no predictor but its start's displacements, which
+    ``correction`` adds to; ``height`` (m, or None: the start's) is where its pad's
+    height, an unknown of the loop, starts.
     """
 
     correction: np.ndarray
     reaction: np.ndarray
     tangent: object = None
+    height: float | None = None
 
     @classmethod
     def of(cls, model: Model, start: State, command: Command, end: State, tangent=None) -> "StepGuess":
@@ -134,10 +140,39 @@ class StepGuess:
                              f"and {model.n_contacts} contacts, got {type(t).__name__}")
 
 
-def guessed_start(model: Model, state: State, command: Command, guess: StepGuess | None) -> np.ndarray:
-    """The start of a step's Newton loop (n_nodes, 3), m: :func:`predictor`, plus
+def guessed_start(model: Model, state: State, command, guess: StepGuess | None) -> np.ndarray:
+    """The start of a step's Newton loop (n_nodes, 3), m: :func:`predictor` (a
+    :class:`~fe_contact.stepping.command.PadLoad`: ``state``'s displacements), plus
     ``guess.correction`` when there is a guess."""
-    U = predictor(model, state, command)
+    U = np.array(state.displacement, dtype=float) if isinstance(command, PadLoad) else predictor(model, state, command)
     if guess is not None:
         U += guess.correction
     return U
+
+
+MAX_LOAD_EXTRAPOLATION = 4.0
+""":func:`load_path_guess` extrapolates a load step by at most this many times the step it extrapolates."""
+
+
+def load_path_guess(before: State, after: State, loads: tuple[float, float], load: float) -> StepGuess | None:
+    """The start of a frictional pad's load step from ``after`` to the pad load
+    ``load`` (N): the path of the load step ``before -> after`` (their pad loads
+    ``loads = (P_0, P_a)``, N) extrapolated linearly in the load,
+
+        S = S_a + s (S_a - S_0),    s = (P - P_a) / (P_a - P_0),
+
+    ``S`` the displacements, the contact forces and the pad's height.  Between
+    changes of a contact's state the unloading path is smooth in the load, so this
+    start is off by ``O(s^2)`` of the last step where the start alone (the first
+    correction a linearised step, damped by the pad's proximal springs,
+    :func:`~fe_contact.stepping.held.pad_loading`) is off by ``O(s)``.  Only the
+    Newton loop's start: the step converges to the same tolerances.  None where
+    the last step did not change the load, or ``s`` is not in ``(0,
+    MAX_LOAD_EXTRAPOLATION]``."""
+    step = loads[1] - loads[0]
+    s = (load - loads[1]) / step if step != 0 else math.nan
+    if not 0 < s <= MAX_LOAD_EXTRAPOLATION:
+        return None
+    height = float(after.upper_translation[2] + s * (after.upper_translation[2] - before.upper_translation[2]))
+    return StepGuess(s * (after.displacement - before.displacement), after.reaction + s * (after.reaction - before.reaction),
+                     height=height)

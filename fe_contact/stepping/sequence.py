@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
+from .command import PadLoad
 from .model import Model, State, StepReport, initial_state
+from .pad_load import pad_normal_load
+from .predictor import load_path_guess
 from .release import Release, ReleaseSchedule, rest_check
-from .midpoint import extrapolated, midpoint_half, two_halves
+from .midpoint import closed_contacts, extrapolated, midpoint_half, two_halves
 from .step import step
 
 
@@ -43,7 +48,8 @@ class StepSequence:
     guesses : sequence of StepGuess or None, optional
         Where the Newton loop of ``commands[i]`` starts (``guesses[i]``, see
         :func:`~fe_contact.stepping.step.step`); commands past its end and the
-        release's steps start from the predictor.
+        release's steps start from the predictor, a pad's load steps from the last
+        load step's path extrapolated in the load (:meth:`_load_guess`).
 
     Attributes
     ----------
@@ -65,6 +71,7 @@ class StepSequence:
         self.state = initial_state(model) if state is None else state
         self.reports: list[StepReport] = []
         self.schedule: ReleaseSchedule | None = None
+        self._path: tuple[State, State] | None = None  # the last load step's path (two states on it)
 
     def __iter__(self):
         for i, command in enumerate(self._commands()):
@@ -73,7 +80,11 @@ class StepSequence:
                 self.state, report = self._midpoint(command, consume)
             else:
                 guess = self.guesses[i] if i < min(len(self.guesses), len(self.commands)) else None
+                if isinstance(command, PadLoad):
+                    guess = self._load_guess(self.state, command.load)
+                start = self.state
                 self.state, report = self._step(self.model, self.state, command, consume=consume, guess=guess)
+                self._path = (start, self.state) if isinstance(command, PadLoad) and report.converged else None
             self.reports.append(report)
             yield self.state, report
             if not report.converged and self.stop_on_failure:
@@ -83,15 +94,36 @@ class StepSequence:
         """A pad's load step by the implicit midpoint rule (:mod:`~fe_contact.stepping.midpoint`):
         the half step, extrapolated, or where it may not be, a second backward-Euler
         step from it; both solves by :meth:`_step` (a recording sequence records them)."""
-        t0, start = time.perf_counter(), self.state
-        middle, first = self._step(self.model, start, midpoint_half(self.model, start, command), consume=consume)
+        t0, start, self._path = time.perf_counter(), self.state, self._path
+        half = midpoint_half(self.model, start, command)
+        middle, first = self._step(self.model, start, half, consume=consume, guess=self._load_guess(start, half.load))
+        self._path = (start, middle) if first.converged else None
         if not first.converged:
             return middle, first
         end = extrapolated(self.model, start, command, middle, first, t0)
-        if end is not None:
-            return end
-        last, second = self._step(self.model, middle, command, consume=True)
-        return two_halves(start, first, last, second) if second.converged else (middle, second)
+        if end is None:
+            last, second = self._step(self.model, middle, command, consume=True,
+                                      guess=self._load_guess(middle, command.load))
+            if not second.converged:
+                self._path = None
+                return middle, second
+            end = two_halves(start, first, last, second)
+        self._path = (middle, end[0])
+        return end
+
+    def _load_guess(self, start: State, load: float):
+        """The start of a pad's load step from ``start`` to ``load`` (N): the last
+        load step's path, if it ended at ``start`` and no contact opened or closed
+        along it (the path is smooth in the load between contact changes, not
+        across one), extrapolated in the load
+        (:func:`~fe_contact.stepping.predictor.load_path_guess`), else None."""
+        if self._path is None or self._path[1] is not start:
+            return None
+        before, after = self._path
+        if np.any(closed_contacts(before.reaction) != closed_contacts(after.reaction)):
+            return None
+        return load_path_guess(before, after, (pad_normal_load(self.model, before), pad_normal_load(self.model, after)),
+                               load)
 
     def _step(self, model: Model, state: State, command, consume: bool = False, guess=None):
         """:func:`~fe_contact.stepping.step.step` with the sequence's local-problem hook."""

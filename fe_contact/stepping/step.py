@@ -60,7 +60,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     guess : StepGuess, optional
         The Newton loop's start (:class:`~fe_contact.stepping.predictor.StepGuess`):
         the same answer to the tolerances, in fewer iterations from a close guess.
-        The rigid drive only (a compliant gripper or frictional pad ignores it).
+        The rigid drive and a pad's :class:`PadLoad` (a compliant gripper's pose ignores it).
 
     Returns
     -------
@@ -81,7 +81,7 @@ def step(model: Model, state: State, command: Command, local_problem_hook=None, 
     if isinstance(command, LetGo):  # a bonded pad opens: the upper face free
         return let_go_step(model, state, command, t0, local_problem_hook, consume)
     if model.pad is not None:  # a pose or a load (PadLoad); a compliant gripper's plate solved in the loop
-        return _split_step(model, state, command, t0, local_problem_hook, 0)
+        return _split_step(model, state, command, t0, local_problem_hook, 0, guess)
     if not model.gripper.rigid:
         return compliant_step(model, state, command, t0, local_problem_hook, consume)
     translation, rotation = commanded_pose(state, command)
@@ -101,12 +101,12 @@ MAX_SPLITS = 4
 """A frictional pad's step that fails is split in halves, at most this many times over."""
 
 
-def _pad_step(model: Model, state: State, command, t0: float, hook):
+def _pad_step(model: Model, state: State, command, t0: float, hook, guess=None):
     """One step with a frictional pad: a commanded pose, or a load (:class:`PadLoad`,
-    the pad's height solved for; a compliant gripper's plate pose solved for).
+    the pad's height solved for, from ``guess`` if given; a compliant gripper's plate pose solved for).
     Returns ``(eq, report, translation, rotation, plate)`` (plate None: the commanded one)."""
     if isinstance(command, PadLoad) or not model.gripper.rigid:
-        return load_step(model, state, command, t0, hook)
+        return load_step(model, state, command, t0, hook, guess)
     translation, rotation = commanded_pose(state, command)
     return (*held_step(model, state, command, translation, rotation, t0, hook), translation, rotation, None)
 
@@ -120,15 +120,15 @@ def _halves(state: State, command):
     return half, half
 
 
-def _split_step(model: Model, state: State, command, t0: float, hook, depth: int):
+def _split_step(model: Model, state: State, command, t0: float, hook, depth: int, guess=None):
     """A step with a frictional pad; if it fails, two steps of half the command
     (or of the load half way, then the whole) each (recursively, up to
     :data:`MAX_SPLITS` levels): the pad's contacts changing state within a
     step can defeat the local solvers (measured: a pad of mu 60 opening), and
     half the motion is a finer path of the same friction law.  The report of a
     split step is its last part's, with the whole motion, the iterations of
-    all parts and a message saying so."""
-    eq, report, translation, rotation, plate = _pad_step(model, state, command, t0, hook)
+    all parts and a message saying so.  ``guess`` starts the whole step's Newton loop (not its parts')."""
+    eq, report, translation, rotation, plate = _pad_step(model, state, command, t0, hook, guess)
     if report.converged:
         return next_state(state, eq, translation, rotation, report, plate=plate), report
     if depth >= MAX_SPLITS:
