@@ -185,6 +185,16 @@ rollout's, at most (measured 1.4e-4: 10.7 um -> 1.5 nm; the modifier's first cor
 same plan: 1.8e-2)."""
 
 
+MIDPOINT_JUMP = 3
+"""Rollouts with derivatives the midpoint release's plan may take, at most: its rest pose is only
+piecewise smooth in the commands. Each load step's choice between extrapolating the half step
+and a second backward-Euler half (``midpoint.extrapolated``: a contact opened or closed) is a
+threshold on a contact force; measured here, a push 1e-9 m longer flips it at the third load
+step and moves the rest by 1.2 um, so one Gauss-Newton step can land across the jump (gain 0.35
+instead of 1e-4) and the next closes it (1.3e-11 m). Backward Euler is smooth there (slope
+0.99938 at steps 1e-9 ... 1e-7)."""
+
+
 @pytest.mark.parametrize("scheme", ["backward_euler", "midpoint"])
 def test_exact_gradient_plans_to_a_rest_pose_with_a_frictional_pad(monkeypatch, scheme):
     """Issue 39: the refinement takes the rest pose's exact Jacobian through the pad's
@@ -224,12 +234,14 @@ def test_exact_gradient_plans_to_a_rest_pose_with_a_frictional_pad(monkeypatch, 
     assert releases and all(r is scenario.release for r in releases)  # the Jacobian is the rest's
     first, step = result.iterations[0], result.iterations[1]
     assert first.position_error > 5 * spec.tolerance and not first.gauss_newton
-    assert step.gauss_newton and step.not_differentiable == ""
-    print(scheme, step.position_error / first.position_error)
-    assert step.position_error <= REST_GAUSS_NEWTON_GAIN * first.position_error
+    assert all(it.gauss_newton and it.not_differentiable == "" for it in result.iterations[1:])
     assert within_tolerance(result.verified.final("rest"), spec)
-    assert len(releases) == len(result.iterations) == 2
     assert plain == []  # the rollouts with derivatives are the plan's only rollouts
+    if scheme == "backward_euler":
+        assert step.position_error <= REST_GAUSS_NEWTON_GAIN * first.position_error
+        assert len(releases) == len(result.iterations) == 2
+    else:  # the midpoint's branch choice (extrapolate or two halves) jumps: MIDPOINT_JUMP
+        assert len(releases) == len(result.iterations) <= MIDPOINT_JUMP
 
 
 def _yaw_case():
