@@ -14,6 +14,7 @@ from fe_contact import Command, Friction, Material, Model, SolverOptions, State,
 from pushplan.config import parse_scenario
 from pushplan.config.plan import parse_plan
 from pushplan.errors import InputError
+from pushplan.identify.loop_result import Iteration
 from pushplan.identify.episodes import (MIN_PROGRESS, episode_spec, plate_over, regrasp, response_gain,
                                        tolerance_units)
 
@@ -229,9 +230,6 @@ def scripted_episodes(monkeypatch, response, first_rest, episodes=6, first_statu
     truth = ScriptedTruth(response, first_rest)
 
     def pushes(current, spec_e, truth_, first_e, opts, label=""):
-        from fe_contact import Command
-        from pushplan.identify.loop_result import Iteration
-
         aim = np.array(spec_e.target)
         truth.aims.append(aim)
         truth.rest = truth.response(aim)
@@ -242,9 +240,6 @@ def scripted_episodes(monkeypatch, response, first_rest, episodes=6, first_statu
     monkeypatch.setattr(loop, "_pushes", pushes)
     spec = dataclasses.replace(parse_plan(parse_scenario(tomllib.loads(SCENARIO))), episodes=episodes,
                                target_state="rest")
-    from fe_contact import Command
-    from pushplan.identify.loop_result import Iteration
-
     first = [Iteration(1, Command(), np.zeros(3), {}, first_status, "", 0, None, 0.0, np.zeros((2, 3)))]
     _, eps, _, stopped = loop._episodes(None, spec, truth, first, None, (), loop.LoopOptions(), 0.0)
     return spec, eps, truth.aims, stopped

@@ -278,12 +278,13 @@ class SupernodalFactor:
         L = self._dense_factor()
         if L is not None:
             x = _triangular_solve(L, x, transposed=True)
-        for s in range(st.n_parts - 1, -1, -1) if L is None else ():  # L^T x = y
-            a, b = starts[s], starts[s + 1]
-            y = x[a:b]
-            if st.boundary[s].size:
-                y = y - self._below[s].T @ x[st.boundary[s]]
-            x[a:b] = _triangular_solve(self._diagonal[s], y, transposed=True)
+        else:
+            for s in range(st.n_parts - 1, -1, -1):  # L^T x = y
+                a, b = starts[s], starts[s + 1]
+                y = x[a:b]
+                if st.boundary[s].size:
+                    y = y - self._below[s].T @ x[st.boundary[s]]
+                x[a:b] = _triangular_solve(self._diagonal[s], y, transposed=True)
         out = np.empty_like(x)
         out[st.perm] = x
         return out

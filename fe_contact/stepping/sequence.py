@@ -94,7 +94,7 @@ class StepSequence:
         """A pad's load step by the implicit midpoint rule (:mod:`~fe_contact.stepping.midpoint`):
         the half step, extrapolated, or where it may not be, a second backward-Euler
         step from it; both solves by :meth:`_step` (a recording sequence records them)."""
-        t0, start, self._path = time.perf_counter(), self.state, self._path
+        t0, start = time.perf_counter(), self.state
         half = midpoint_half(self.model, start, command)
         middle, first = self._step(self.model, start, half, consume=consume, guess=self._load_guess(start, half.load))
         self._path = (start, middle) if first.converged else None
