@@ -16,6 +16,8 @@ from fe_contact.contact.bodies import ContactBody, horizontal_frame, stack_bodie
 INSENSITIVE = 0.005  # issue: rest pose moves < 0.5 % of the lag when a tolerance / regularisation is / 10
 BOUND = 0.01  # issue: the friction ratio bounds to 1 % of the lag
 WEIGHT_RTOL = 1e-9
+PATH_PER_TOL = SolverOptions().path_tol / SolverOptions().newton_tol
+"""The release's path tolerance scales with the tolerances (the defaults at tol 1e-10): "the tolerances / 10" divide it."""
 
 DRAGGED = 0.02  # a retreat of half the press per unit rise moves the rest pose by more than this, in lags
 RETREAT = 2e-4  # m, along x, with the rise from the press (0.4 mm) to the reference height
@@ -28,7 +30,8 @@ def model(ratio, beta=1e-2, tol=1e-10, density=1000.0):
     """The block; ``ratio`` is the pad's friction over the floor's (same axes), None for a bonded pad."""
     pad = None if ratio is None else Friction(FLOOR[0] * ratio, FLOOR[1] * ratio, FLOOR[2])
     return Model(block_mesh((0.04, 0.03, 0.02), (3, 2, 2)), Material(2e6, 0.45, density=density), Friction(*FLOOR),
-                 quadrature=2, pad=pad, options=SolverOptions(pad_regularisation=beta, newton_tol=tol, local_tol=tol))
+                 quadrature=2, pad=pad, options=SolverOptions(pad_regularisation=beta, newton_tol=tol, local_tol=tol,
+                                                              path_tol=PATH_PER_TOL * tol))
 
 
 @functools.lru_cache(maxsize=None)

@@ -138,7 +138,11 @@ def joined_report(state: State, first: StepReport, second: StepReport, command: 
     """The report of a step taken in two parts from ``state``: the second
     part's, with the whole ``command``, both parts' slip increments, their
     Newton iterations combined by ``combine`` (``sum``: the cost; ``max``: the
-    longest Newton loop), and ``message``."""
+    longest Newton loop), and ``message``, followed by what the parts' own
+    messages say beyond "converged" (a part solved to the release's path
+    tolerance, or to rounding, says so)."""
+    notes = list(dict.fromkeys(m for m in (first.message, second.message) if m != "converged"))
+    message = "; ".join([message, *(f"part: {m}" for m in notes)])
     return replace(second, command=command, step_index=state.step_index + 1,
                    newton_iterations=combine((first.newton_iterations, second.newton_iterations)),
                    slip_increment=first.slip_increment + second.slip_increment, message=message)

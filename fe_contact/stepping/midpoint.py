@@ -86,7 +86,8 @@ def extrapolated(model: Model, state: State, command: PadLoad, middle: State, fi
     plate = 2.0 * middle.plate - state.plate  # a compliant gripper's plate pose (the commanded one if rigid)
     end = replace(state, displacement=U, reaction=r, upper_translation=translation, upper_rotation=rotation,
                   plate=plate, step_index=state.step_index + 1, tangent=None)
-    eq = Equilibrium(first.status, "converged (implicit midpoint: the half step extrapolated)", U, r, None,
+    note = "" if first.message == "converged" else f"; its half step {first.message}"  # e.g. the path tolerance
+    eq = Equilibrium(first.status, f"converged (implicit midpoint: the half step extrapolated{note})", U, r, None,
                      float(min_det), first.newton_residual, 0.0, first.iterations, first.tangent_updates, None,
                      first.timings)
     taken = Command(*(translation - state.upper_translation), rotation - state.upper_rotation)

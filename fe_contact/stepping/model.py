@@ -84,6 +84,15 @@ class SolverOptions:
         Iteration limit of the equilibrium loop (a bound on its cost, not a
         convergence test: a loop whose force stops falling ends earlier,
         "stalled at r", :mod:`fe_contact.stepping.newton`).
+    path_tol : float
+        Tolerance, like ``newton_tol``, of a frictional pad's release's load
+        steps to a load above zero (:class:`~fe_contact.stepping.command.PadLoad`,
+        their midpoint halves, second halves and split parts): points on the
+        unloading path, whose discretisation error is 0.1-1 % of the lag, are
+        solved to ``max(newton_tol, path_tol)``; the release's last step to zero
+        load, every other step and the rest check keep ``newton_tol``.  Its
+        effect on the rest pose is measured (docs/release.md); a derivative
+        checked by central differences through a release wants it tight.
     reuse_tangent : bool
         Modified Newton: keep the tangent (its factorisation and the flexibility
         matrix) from iteration to iteration and from step to step, refreshing it
@@ -113,6 +122,7 @@ class SolverOptions:
     local_max_iter: int | None = None
     newton_tol: float = 1e-10
     newton_max_iter: int = 100
+    path_tol: float = 1e-5
     reuse_tangent: bool = True
     refresh_ratio: float = 0.2
     pad_regularisation: float = 1e-2
@@ -123,7 +133,7 @@ class SolverOptions:
             raise ValueError(
                 f"local_method must be one of {LOCAL_METHODS}, got {self.local_method!r}"
             )
-        for name in ("local_tol", "newton_tol"):
+        for name in ("local_tol", "newton_tol", "path_tol"):
             v = _finite(name, getattr(self, name))
             if not 0 < v < 1:
                 raise ValueError(f"{name} must be in (0, 1), got {v}")

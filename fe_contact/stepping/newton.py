@@ -18,7 +18,8 @@ displacements and the only Newton nonlinearity is geometric.
 
 The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
 of the upper-face and contact force norms and the command's own out-of-balance
-force, or where rounding stops it (the last correction at rounding level of
+force (``max(newton_tol, path_tol)`` for a point on a frictional pad's unloading
+path: a release's load step to a load above zero), or where rounding stops it (the last correction at rounding level of
 ``U``); it says "stalled at r" when the force no longer falls, and gives up
 at ``newton_max_iter`` (:func:`_verdict`).
 
@@ -99,7 +100,7 @@ def _timed(timings: dict, phase: str):
 
 def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=None,
                 consume: bool = False, loading: Loading = NO_LOADING, gripper=None,
-                guess=None, scale_at: np.ndarray | None = None) -> Equilibrium:
+                guess=None, scale_at: np.ndarray | None = None, path_tol: float | None = None) -> Equilibrium:
     """Newton loop of a step from ``state``, started at ``U`` (n_nodes, 3) with
     the upper face at its commanded pose (``U`` may be updated in place).
 
@@ -114,7 +115,9 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     contact forces are the first ones (default ``state``'s) and its tangent, if it has
     one, is kept instead of ``state``'s; the step's force scale is the state's either
     way (the same convergence test): taken at ``scale_at`` (n_nodes, 3), m, where
-    given (the start without the guess), else at ``U``."""
+    given (the start without the guess), else at ``U``.  ``path_tol``: the step is a
+    point on a release's unloading path (:func:`~fe_contact.stepping.pad_load.load_step`),
+    converged at ``max(newton_tol, path_tol)`` and saying so (:func:`_verdict`)."""
     loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper,
                        None if guess is None else guess.tangent)
     loop.scale_at = scale_at
@@ -127,7 +130,7 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
             continue
         if failure is None:
             failure = None if mixed else _verdict(model.options, it, loop.rel_res, loop.history, loop.last_step,
-                                                 float(np.abs(U).max()))
+                                                 float(np.abs(U).max()), path_tol)
         if failure is not None:
             loop.status, loop.message = failure
             break
@@ -261,11 +264,13 @@ ROUNDING_STEP = 64
 point to rounding: its out-of-balance force is what rounding allows at that load and mesh."""
 
 
-def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_size: float):
+def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_size: float,
+             path_tol: float | None = None):
     """The end of the Newton loop at a plain iterate, or None to go on.
 
-    Converged when the relative out-of-balance force is at most ``newton_tol``,
-    or when the last correction was at rounding level (``ROUNDING_STEP eps
+    Converged when the relative out-of-balance force is at most ``newton_tol``
+    (``max(newton_tol, path_tol)`` for a point on a release's unloading path:
+    "converged to the release's path tolerance", with ``r``), or when the last correction was at rounding level (``ROUNDING_STEP eps
     max |U|``, m): no iteration can improve the iterate, its force is what
     rounding allows (a fixed tolerance alone fails converged steps of a fine
     mesh, issue 39).  Stalled (not converged, "stalled at r") when the last
@@ -277,15 +282,21 @@ def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_s
     history.append(rel_res)
     if rel_res <= opts.newton_tol:
         return Status.CONVERGED, ""
+    tol, name = (opts.newton_tol, "newton_tol") if path_tol is None or path_tol <= opts.newton_tol else \
+        (path_tol, "path_tol")
+    if rel_res <= tol:
+        return Status.CONVERGED, (f"converged to the release's path tolerance (relative out-of-balance force "
+                                  f"{rel_res:.3g} <= path_tol {tol:g}; newton_tol {opts.newton_tol:g} not asked of "
+                                  "a point on the unloading path)")
     if last_step <= ROUNDING_STEP * np.finfo(float).eps * u_size:
         return Status.CONVERGED, (f"converged to rounding (relative out-of-balance force {rel_res:.3g}, the last "
                                   f"correction {last_step:.3g} m at rounding level)")
     if len(history) > STALL_WINDOW and min(history[-STALL_WINDOW:]) > STALL_RATIO * min(history[:-STALL_WINDOW]):
-        return Status.NEWTON_NOT_CONVERGED, (f"Newton loop stalled at r = {rel_res:.3g} (> newton_tol "
-                                             f"{opts.newton_tol:g}): no fall over {STALL_WINDOW} iterations")
+        return Status.NEWTON_NOT_CONVERGED, (f"Newton loop stalled at r = {rel_res:.3g} (> {name} "
+                                             f"{tol:g}): no fall over {STALL_WINDOW} iterations")
     if it == opts.newton_max_iter:
         return Status.NEWTON_NOT_CONVERGED, (f"Newton loop did not converge in {opts.newton_max_iter} iterations "
-                                             f"(relative out-of-balance force {rel_res:.3g} > {opts.newton_tol:g})")
+                                             f"(relative out-of-balance force {rel_res:.3g} > {name} {tol:g})")
     return None
 
 

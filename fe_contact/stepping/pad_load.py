@@ -50,7 +50,7 @@ from .model import Model, State, Status
 from .newton import equilibrium
 from .predictor import commanded_pose, guessed_start
 
-__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step", "pad_normal_load"]
+__all__ = ["LoadDrive", "LOAD_TOL", "MAX_LOAD_EVALUATIONS", "load_step", "pad_normal_load", "path_tolerance"]
 
 LOAD_TOL = 1e-10
 """The pad's load equation is met to this fraction of the load scale (the loaded pad load, or the weight)."""
@@ -373,7 +373,7 @@ def load_step(model: Model, state: State, command, t0: float, local_problem_hook
     starts the loop at its displacements, contact forces and pad height; the step's
     force scale (its convergence test) is the one from the state; if the loop does
     not converge from the guess, the step is solved again from the state (the
-    report counts both loops' iterations)."""
+    report counts both loops' iterations).  Its Newton tolerance: :func:`path_tolerance`."""
     lx, ly, lz = model.mesh.size
     current = pad_normal_load(model, state)
     target = command.load if isinstance(command, PadLoad) else 0.0
@@ -384,7 +384,7 @@ def load_step(model: Model, state: State, command, t0: float, local_problem_hook
     if guess is not None and guess.height is not None:
         drive.height = guess.height
     eq = equilibrium(model, state, U, local_problem_hook, False, loading, drive, guess=guess,
-                     scale_at=None if guess is None else state.displacement)
+                     scale_at=None if guess is None else state.displacement, path_tol=path_tolerance(model, command))
     if guess is not None and eq.status is not Status.CONVERGED:  # the guess misled it: from the state
         again, report, *pose = load_step(model, state, command, t0, local_problem_hook)
         return again, replace(report, newton_iterations=report.newton_iterations + len(eq.iterations)), *pose
@@ -394,6 +394,16 @@ def load_step(model: Model, state: State, command, t0: float, local_problem_hook
     extra = None if drive.k is None else {"gripper_force": drive.k * (c - drive.plate), "plate": drive.plate.copy()}
     report = checked(model, measure(model, state, taken, eq, t0, loading, extra))
     return eq, report, translation, float(c[2]), drive.plate.copy()
+
+
+def path_tolerance(model: Model, command) -> float | None:
+    """``SolverOptions.path_tol`` for a :class:`PadLoad` to a load above zero (a point
+    on the release's unloading path, whose discretisation error in the load steps is
+    0.1-1 % of the lag: docs/release.md), else None (``newton_tol``: the release's
+    last step to zero load, a compliant gripper's commanded pose).  The one place
+    that decides which steps the path tolerance applies to (midpoint halves, second
+    backward-Euler halves and split parts are PadLoads above zero too)."""
+    return model.options.path_tol if isinstance(command, PadLoad) and command.load > 0 else None
 
 
 def _load_noise(local, q: np.ndarray, pad: np.ndarray, local_tol: float) -> float:

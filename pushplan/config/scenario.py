@@ -216,7 +216,7 @@ def _solver(table) -> SolverOptions:
         t.choice("local_method", LOCAL_METHODS)
     if "reuse_tangent" in t:
         t.boolean("reuse_tangent")
-    for k in ("local_tol", "newton_tol"):
+    for k in ("local_tol", "newton_tol", "path_tol"):
         if k in t and t.number(k, positive=True, hi=1.0) < MIN_TOLERANCE:
             raise InputError(f"solver.{k} must be >= {MIN_TOLERANCE} (below double rounding it cannot be "
                              f"reached), got {t.data[k]!r}")
