@@ -35,7 +35,7 @@ from fe_contact import Command, Friction, Gripper, Material, Model, Release, Sol
 from fe_contact.stepping.derivative_check import check_derivatives
 from fe_contact.stepping.transitions import KINDS
 
-TIGHT = SolverOptions(newton_tol=1e-13, local_tol=1e-14)
+TIGHT = SolverOptions(newton_tol=1e-13, local_tol=1e-14, path_tol=1e-13)  # central differences: the path tight too
 SIZE = (0.02, 0.02, 0.01)
 PAD_PUSH = [Command(dz=-2e-4), Command(dx=2e-4, dy=1e-4, dtheta=0.01)]
 BONDED_PUSH = [Command(dz=-2e-4), Command(dx=3e-4, dy=1e-4, dtheta=0.01)]

@@ -1,6 +1,8 @@
 """The rest pose after a frictional pad's release (load control, issue 39) against the
-release's numerical settings: 4 x the load steps, the tolerances / 10, the pad's
-regularisation / 10, for pad / floor friction ratios 0.01, 1 and 100, and the 100 x pad
+release's numerical settings: 4 x the load steps, the tolerances / 10 (``newton_tol``,
+``local_tol`` and the release's ``path_tol`` with them), the pad's regularisation / 10,
+and the release's path solved to ``newton_tol`` (``path_at_newton_tol``: the path
+tolerance's effect), for pad / floor friction ratios 0.01, 1 and 100, and the 100 x pad
 against the bonded lift; in units of the loaded lag.
 
 The block of tests/test_pad.py: rubber 40 x 30 x 20 mm (3 x 2 x 2 hex8, quadrature 2,
@@ -27,11 +29,18 @@ FLOOR = (0.6, 0.2, math.radians(20.0))
 PUSH = Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))
 
 
-def rest(ratio, steps: int, tol: float = 1e-10, beta: float = 1e-2) -> dict:
-    """Rest of the block with a pad of ``ratio`` x the floor's friction (None: bonded)."""
+PATH_PER_TOL = SolverOptions().path_tol / SolverOptions().newton_tol
+"""The release's path tolerance moves with the tolerances (the defaults at ``tol`` 1e-10)."""
+
+
+def rest(ratio, steps: int, tol: float = 1e-10, beta: float = 1e-2, path: float | None = None) -> dict:
+    """Rest of the block with a pad of ``ratio`` x the floor's friction (None: bonded); ``path`` the
+    release's path tolerance (default: ``PATH_PER_TOL tol``)."""
     pad = None if ratio is None else Friction(FLOOR[0] * ratio, FLOOR[1] * ratio, FLOOR[2])
+    path = PATH_PER_TOL * tol if path is None else path
+    options = SolverOptions(newton_tol=tol, local_tol=tol, path_tol=path, pad_regularisation=beta)
     m = Model(block_mesh((0.04, 0.03, 0.02), (3, 2, 2)), Material(2e6, 0.45, density=1000.0), Friction(*FLOOR),
-              quadrature=2, pad=pad, options=SolverOptions(newton_tol=tol, local_tol=tol, pad_regularisation=beta))
+              quadrature=2, pad=pad, options=options)
     t0 = time.process_time()
     state, pushes = run(m, [Command(dz=-4e-4), PUSH, PUSH])
     _, release, status = release_to_rest(m, state, Release("lift", steps, max_steps=10 * steps + 100), pushes[-1])
@@ -53,7 +62,8 @@ def main() -> None:
         lag = ref["lag"]
         row = {"ratio": ratio, "steps": base, "lag": lag, "status": ref["status"], "newton": ref["newton"]}
         for name, kw in (("steps_x4", {"steps": fine}), ("tolerances_div10", {"steps": base, "tol": 1e-11}),
-                         ("regularisation_div10", {"steps": base, "beta": 1e-3})):
+                         ("regularisation_div10", {"steps": base, "beta": 1e-3}),
+                         ("path_at_newton_tol", {"steps": base, "path": 1e-10})):
             other = rest(ratio, **kw)
             row[name] = float(np.linalg.norm(other["rest"] - ref["rest"]) / lag)
             row[name + "_status"] = other["status"]
