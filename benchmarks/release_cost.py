@@ -10,7 +10,9 @@ along x by a pad of ``ratio`` times the floor's friction (same axes), then relea
 the rest status, ``N / W - 1``, the rest pose's lower-face centroid, the loaded lag and the
 process time of each phase (one core; the machine shared, so times are indicative).
 
-    python benchmarks/release_cost.py [--steps 4 16] [--ratios 0.01 0.1 1 10 100]
+    python benchmarks/release_cost.py [--steps 4 16] [--ratios 0.01 0.1 1 10 100] [--path-tol 1e-4]
+
+``--path-tol``: the release's path tolerance (``SolverOptions.path_tol``, default its default).
 
 Writes ``benchmarks/results/release_cost.json``.
 """
@@ -24,17 +26,17 @@ import time
 import numpy as np
 
 from _common import write_results
-from fe_contact import Command, Friction, Material, Model, Release, block_mesh, release_to_rest, run
+from fe_contact import Command, Friction, Material, Model, Release, SolverOptions, block_mesh, release_to_rest, run
 
 FLOOR = (0.65, 0.3, math.radians(20.0))
 RATIOS = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 LOADS = [Command(dz=-2.5e-4)] + [Command(dx=8e-4)] * 3
 
 
-def case(pad: Friction, steps: int) -> dict:
+def case(pad: Friction, steps: int, options: SolverOptions | None = None) -> dict:
     """Push and release of the issue's block with ``pad``, in ``steps`` load steps."""
     m = Model(block_mesh((0.028, 0.022, 0.014), (6, 5, 3)), Material(2e6, 0.45, density=1000.0), Friction(*FLOOR),
-              quadrature=2, pad=pad)
+              quadrature=2, pad=pad, options=options or SolverOptions())
     t0 = time.process_time()
     state, pushes = run(m, LOADS)
     t1 = time.process_time()
@@ -55,21 +57,25 @@ def main() -> None:
     parser.add_argument("--steps", type=int, nargs="+", default=[4, 16])
     parser.add_argument("--ratios", type=float, nargs="+", default=RATIOS)
     parser.add_argument("--name", default="release_cost", help="results file name (benchmarks/results/NAME.json)")
+    parser.add_argument("--path-tol", type=float, default=SolverOptions().path_tol,
+                        help="the release's path tolerance (SolverOptions.path_tol)")
     args = parser.parse_args()
+    options = SolverOptions(path_tol=args.path_tol)
     rows = []
     print(f"{'pad mu_x':>9} {'steps':>5} {'push it':>7} {'rel it':>6} {'ratio':>6} {'status':>11} {'N/W-1':>9} "
           f"{'push s':>6} {'rel s':>6}")
     pads = [Friction(0.0065, 0.0065)] + [Friction(FLOOR[0] * r, FLOOR[1] * r, FLOOR[2]) for r in args.ratios]
     for steps in args.steps:
         for pad in pads:
-            row = case(pad, steps)
+            row = case(pad, steps, options)
             rows.append(row)
             print(f"{pad.mu_x:9.4g} {steps:5d} {row['push_newton']:7d} {row['release_newton']:6d} {row['ratio']:6.2f} "
                   f"{row['status']:>11} {row['normal_over_weight_minus_1']:9.1e} {row['push_s']:6.1f} "
                   f"{row['release_s']:6.1f}", flush=True)
             worst = {s: max(r["ratio"] for r in rows if r["steps"] == s) for s in args.steps if
                      any(r["steps"] == s for r in rows)}
-            path = write_results(args.name, {"floor": FLOOR[:2], "floor_angle_deg": 20.0, "rows": rows,
+            path = write_results(args.name, {"floor": FLOOR[:2], "floor_angle_deg": 20.0, "path_tol": args.path_tol,
+                                             "rows": rows,
                                              "worst_ratio": {str(k): v for k, v in worst.items()}})
     print("worst release / push Newton iterations:", worst)
     print("wrote", path)
