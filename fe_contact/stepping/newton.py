@@ -286,8 +286,7 @@ def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_s
         (path_tol, "path_tol")
     if rel_res <= tol:
         return Status.CONVERGED, (f"converged to the release's path tolerance (relative out-of-balance force "
-                                  f"{rel_res:.3g} <= path_tol {tol:g}; newton_tol {opts.newton_tol:g} not asked of "
-                                  "a point on the unloading path)")
+                                  f"{rel_res:.3g} <= path_tol {tol:g}, not newton_tol {opts.newton_tol:g})")
     if last_step <= ROUNDING_STEP * np.finfo(float).eps * u_size:
         return Status.CONVERGED, (f"converged to rounding (relative out-of-balance force {rel_res:.3g}, the last "
                                   f"correction {last_step:.3g} m at rounding level)")
