@@ -85,3 +85,14 @@ def test_path_tol_in_a_scenario():
     data["solver"] = {"path_tol": 0.0}
     with pytest.raises(InputError, match="solver.path_tol"):
         parse_scenario(data)
+
+
+def test_every_solver_key_is_in_the_scenario_docs():
+    """docs/scenarios.md's ``[solver]`` block names every ``SolverOptions`` field (``path_tol`` among them)."""
+    from dataclasses import fields
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
+    block = page.split("[solver]", 1)[1].split("```", 1)[0]
+    keys = {line.lstrip("# ").split("=", 1)[0].strip() for line in block.splitlines() if "=" in line}
+    assert {f.name for f in fields(SolverOptions)} <= keys, keys
