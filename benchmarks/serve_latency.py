@@ -3,7 +3,7 @@ process, at the same load, in one run (issue 41).
 
 The server runs as its own process (``pushplan serve --address 127.0.0.1:0``); this process
 is the client.  The case is ``plan_rubber`` on its planning mesh (6 x 6 x 2, sessions
-without the verification mesh):
+without the verification mesh but those of the verified re-plan):
 
 - **the closed loop**, ``--loops`` times at most (no new loop after ``--loop-budget`` s): ``Open``, ``Plan``, then the loop's 5 warm
   re-plans (``Replan``, ``closed_loop=True``, as ``pushplan closed-loop`` re-plans) on the
@@ -15,6 +15,12 @@ without the verification mesh):
   Each loop through the service is followed by the same loop in this process
   (:class:`pushplan.service.worker.SessionState`, the session's own code without the wire),
   so both see the same load: per call, overhead = service time - in-process time;
+- **the verified re-plan**, ``--verified-loops`` times at most (no new loop after
+  ``--verified-budget`` s): the default ``Replan`` (no ``closed_loop``) in a session opened with
+  ``verify`` true (the default), on the same requests: each re-plan is corrected on the
+  planning mesh and then verified on the verification mesh (12 x 12 x 4, quadrature 3), so it
+  costs that mesh's FE rollouts too; through the service only (each answer's ``session_s`` /
+  ``session_cpu_s`` is the session's part), by pushes left;
 - **rollouts** of 3 pushes from the press, ``--calls`` times at most (none started after
   ``--rollout-budget`` s), alternating service and in-process;
 - a session's ``Info`` round trip, ``--calls`` times: the wire with no work behind it;
@@ -193,6 +199,45 @@ def measure_loops(address: str, text: str, loops: int, budget: float) -> dict:
     }
 
 
+def measure_verified(address: str, text: str, loops: int, budget: float) -> dict:
+    """The default ``Replan`` (verified on the verification mesh) in sessions opened with
+    ``verify`` true, ``loops`` closed loops' requests at most, none started once ``budget`` s
+    have passed: wall times from this process, the session's CPU, FE rollouts, by pushes left."""
+    from pushplan.client import Client
+
+    requests, _ = closed_loop_requests(text)
+    steps = tomllib.loads(text)["plan"]["steps"]
+    runs, t_start = [], time.perf_counter()
+    with Client(address, timeout=600.0) as c:
+        while len(runs) < loops and (not runs or time.perf_counter() - t_start < budget):
+            t0 = time.perf_counter()
+            s = c.open(scenario_path=str(SCENARIO))  # verify: true, the default
+            run = {"open": time.perf_counter() - t0, "replan": [], "cpu": [], "rollouts": [], "commands": []}
+            t0 = time.perf_counter()
+            s.plan()
+            run["plan"] = time.perf_counter() - t0
+            for r in requests:
+                t0 = time.perf_counter()
+                answer = s.replan(r["executed"], r["observed"])  # closed_loop false: verified
+                run["replan"].append(time.perf_counter() - t0)
+                run["cpu"].append(answer["session_cpu_s"])
+                run["rollouts"].append(answer["fe_rollouts"])
+                run["commands"].append(answer["commands"])
+            s.close()
+            runs.append(run)
+    left = [str(steps - len(r["executed"])) for r in requests]
+    return {
+        "verified_loops": len(runs), "verified_loops_asked": loops, "verified_budget_s": budget,
+        "verified_mesh": "verification 12 x 12 x 4, quadrature 3 (and the planning mesh)",
+        "verified_answers_equal_to_the_first_loop": all(r["commands"] == runs[0]["commands"] for r in runs),
+        "verified_open": _stats([r["open"] for r in runs]), "verified_plan": _stats([r["plan"] for r in runs]),
+        "verified_replan": _stats([x for r in runs for x in r["replan"]]),
+        "verified_replan_session_cpu": _stats([x for r in runs for x in r["cpu"]]),
+        "verified_replan_by_pushes_left": {k: _stats([r["replan"][i] for r in runs]) for i, k in enumerate(left)},
+        "verified_replan_fe_rollouts_by_pushes_left": {k: runs[0]["rollouts"][i] for i, k in enumerate(left)},
+    }
+
+
 def measure_rollouts(address: str, text: str, calls: int, budget: float) -> dict:
     """``calls`` rollouts each way, alternating; none started once ``budget`` s have passed."""
     from pushplan.client import Client
@@ -253,6 +298,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--loops", type=int, default=40, help="closed loops (5 re-plans each) per path, at most")
     ap.add_argument("--loop-budget", type=float, default=90.0, help="s after which no new loop starts")
+    ap.add_argument("--verified-loops", type=int, default=8, help="closed loops of verified re-plans, at most")
+    ap.add_argument("--verified-budget", type=float, default=60.0, help="s after which no new verified loop starts")
     ap.add_argument("--calls", type=int, default=200, help="rollouts per path, at most")
     ap.add_argument("--rollout-budget", type=float, default=20.0, help="s after which no new rollout starts")
     ap.add_argument("--idle", type=float, default=5.0)
@@ -263,6 +310,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.loops, args.calls, args.idle, args.clients, args.replans = 3, 20, 1.0, 2, 3
+        args.verified_loops = 1
     from pushplan.client import Client
 
     t_start, load_before = time.perf_counter(), os.getloadavg()
@@ -277,6 +325,7 @@ def main(argv=None) -> int:
     try:
         address = server.stdout.readline().split("listening on ")[1].strip()
         doc |= measure_loops(address, text, args.loops, args.loop_budget)
+        doc |= measure_verified(address, text, args.verified_loops, args.verified_budget)
         doc |= measure_rollouts(address, text, args.calls, args.rollout_budget)
         with Client(address) as c:
             s = c.open(scenario_path=str(SCENARIO), verify=False)
@@ -315,6 +364,10 @@ def _summary(doc: dict) -> None:
         a, b = doc[key], doc[here]
         print(f"{key:>24}: service {a['median_s'] * ms:8.1f} / {a['p99_s'] * ms:8.1f} ms (median / p99 of {a['calls']}),"
               f" in process {b['median_s'] * ms:8.1f} / {b['p99_s'] * ms:8.1f} ms")
+    v = doc["verified_replan"]
+    print(f"verified re-plan (default Replan, verify true): service {v['median_s'] * ms:.1f} / {v['p99_s'] * ms:.1f} ms "
+          f"(median / p99 of {v['calls']}), by pushes left " + ", ".join(
+              f"{k}: {x['median_s'] * ms:.0f} ms" for k, x in doc["verified_replan_by_pushes_left"].items()))
     o, w, parts = doc["warm_replan_overhead"], doc["warm_replan_wire"], doc["warm_replan_wire_parts_median_s"]
     print(f"warm re-plan: service - in process per call (pairs) median {o['median_s'] * ms:.2f} ms, p99 "
           f"{o['p99_s'] * ms:.2f} ms; the wire (client time - session time, same call) median {w['median_s'] * ms:.2f} ms,"

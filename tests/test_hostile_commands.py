@@ -120,6 +120,15 @@ CASES = {
     "turn -360 in a row (plan --from)": (files(s=PLAN, o="dx,dy,dz,dtheta_deg,lower_x\n0,0,-1e-4,0,0\n0,0,0,-360,0\n"),
                                          ["plan", "{tmp}/s.toml", "--out", "{out}", "--from", "{tmp}/o.csv"],
                                          ["row 2 column dtheta_deg", "-360"]),
+    "a 1 m push in a row (plan --from)": (files(s=PLAN, o="dx,dy,dz,dtheta_deg,lower_x,lower_y\n0,0,-1e-4,0,0,0\n"
+                                                       "1.0,0,0,0,0,0\n"),
+                                          ["plan", "{tmp}/s.toml", "--out", "{out}", "--from", "{tmp}/o.csv"],
+                                          ["observations: row 2", "[1.0, 0.0, 0]", "plan.max_step = 0.0001"]),
+    "a 3 deg turn in a row, max_dtheta_deg 0.5 (plan --from)": (
+        files(s=edit(PLAN, "steps = 2", "steps = 2\nyaw_deg = 1.0\nmax_dtheta_deg = 0.5"),
+              o="dx,dy,dz,dtheta_deg,lower_x,lower_y,lower_yaw_deg\n0,0,-1e-4,0,0,0,0\n0,0,0,3,0,0,0\n"),
+        ["plan", "{tmp}/s.toml", "--out", "{out}", "--from", "{tmp}/o.csv"],
+        ["observations: row 2", "3]", "turns 3 deg", "plan.max_dtheta_deg = 0.5"]),
     "commands-only observations": (files(s=BASE, o="dx,dy,dz,dtheta_deg\n0,0,-1e-4,0\n1e-4,0,0,0\n"),
                                    ["identify", "{tmp}/s.toml", "--observations", "{tmp}/o.csv", "--out", "{out}"],
                                    ["commands only"]),

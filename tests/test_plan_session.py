@@ -138,6 +138,35 @@ def test_a_gauss_newton_step_solves_a_linear_push_exactly():
     assert gauss_newton_commands(u, J.reshape(3, -1) @ u.ravel(), J, far) is None
 
 
+@pytest.mark.parametrize("over", [1e-7, 1e-5])
+def test_a_gauss_newton_step_keeps_the_step_bounds_of_check_steps(over):
+    """One rule for a command's bounds: a refined step at ``max_step (1 + over)`` is kept
+    exactly when ``PlanSpec.check_steps`` (the service's and ``plan --from``'s check, slack
+    STEP_SLACK = 1e-6) accepts it."""
+    import dataclasses
+
+    from pushplan.config.plan import STEP_SLACK
+    from pushplan.errors import InputError
+    from pushplan.planning.refine import gauss_newton_commands
+
+    model = parse_scenario(tomllib.loads(MODEL.format(mu_x=0.3, mu_y=0.15) + PLAN))
+    spec = dataclasses.replace(parse_plan(model), effort_weight=1e-12)
+    m = spec.steps
+    spec = dataclasses.replace(spec, target=(m * spec.max_step * (1 + over), 0.0, 0.0))
+    J = np.zeros((3, m, 3))
+    J[0, :, 0] = J[1, :, 1] = 1.0
+    u = np.zeros((m, 3))
+    refined = gauss_newton_commands(u, np.zeros(3), J, spec)
+    if over < STEP_SLACK:
+        np.testing.assert_allclose(refined[:, 0].sum(), spec.target[0], rtol=1e-10)
+        assert refined[:, 0].max() > spec.max_step * (1 + 1e-8)  # over the bound, within the slack
+        spec.check_steps(refined, "commands")
+    else:
+        assert refined is None
+        with pytest.raises(InputError, match=r"commands\[0\]"):
+            spec.check_steps(np.tile([spec.max_step * (1 + over), 0.0, 0.0], (m, 1)), "commands")
+
+
 @pytest.mark.parametrize("refinement", ["modifier", "exact_gradient"])
 def test_both_refinements_reach_the_tolerance_and_plan_json_names_them(tmp_path, refinement):
     import json

@@ -323,6 +323,25 @@ def test_sigterm_closes_sessions_and_exits_cleanly(tmp_path):
             proc.kill()
 
 
+def test_sigterm_after_the_stdout_reader_has_gone_stops_tidily(tmp_path):
+    """The reader of the server's stdout gone (its supervisor's pipe closed): the stop's last
+    line cannot be written, which is no failure of the stop (docs/service.md): exit 0, no
+    traceback, no 'Exception ignored' from the interpreter's flush at exit."""
+    proc = subprocess.Popen([sys.executable, "-m", "pushplan.cli", "serve", "--address", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        assert "listening on" in proc.stdout.readline()
+        proc.stdout.close()  # the reader goes
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        assert "Traceback" not in err and "BrokenPipe" not in err and "Exception ignored" not in err, err
+        assert proc.returncode == 0
+        assert list(tmp_path.iterdir()) == []  # nothing written
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
 def test_serve_refuses_an_address_off_loopback_without_flag_and_token(tmp_path, capsys):
     assert main(["serve", "--address", "0.0.0.0:0"]) == 2
     assert "--allow-remote" in capsys.readouterr().err

@@ -1,22 +1,39 @@
 """``pushplan serve [--address HOST:PORT]``: a resident planning service (docs/service.md).
 
 Prints ``pushplan serve: listening on HOST:PORT`` once bound, serves until SIGTERM or
-SIGINT, then stops taking calls, closes every session and exits 0 (it writes no file).
+SIGINT, then stops taking calls, closes every session and exits 0 (it writes no file; a
+reader of its stdout that has gone does not change that: :func:`_say`).
 Exit 2 for bad flags: an address off loopback without ``--allow-remote`` and a token, an
 unreadable token file, a ``--root`` that is not a folder.
 """
 
 from __future__ import annotations
 
+import os
 import select
 import signal
 import socket
+import sys
 import threading
 
 from ..errors import InputError
 
 SIGNAL_BACKSTOP = 5.0
 """s between wake-ups of the waiting main thread should a signal's wake-up byte be lost."""
+
+
+def _say(line: str) -> None:
+    """Print ``line`` on stdout.  The lines are a report for whoever reads them; if that
+    reader has gone (its pipe closed: ``BrokenPipeError``, Python ignores SIGPIPE), the
+    server's work is unchanged, so the line and every later one are dropped: stdout is
+    pointed at ``os.devnull``, the idiom of the ``signal`` module's "Note on SIGPIPE", so that
+    the interpreter's flush at exit does not fail again on what is left in the buffer."""
+    try:
+        print(line, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
 
 
 def _token(path) -> str | None:
@@ -51,7 +68,7 @@ def cmd_serve(args) -> int:
     wake, woken = socket.socketpair()
     wake.setblocking(False)
     previous = signal.set_wakeup_fd(wake.fileno(), warn_on_full_buffer=False)
-    print(f"pushplan serve: listening on {server.address}", flush=True)
+    _say(f"pushplan serve: listening on {server.address}")
     try:
         while not stop.is_set():
             if select.select([woken], [], [], SIGNAL_BACKSTOP)[0]:
@@ -61,7 +78,7 @@ def cmd_serve(args) -> int:
         wake.close()
         woken.close()
         server.stop()
-    print("pushplan serve: stopped, sessions closed", flush=True)
+    _say("pushplan serve: stopped, sessions closed")
     return 0
 
 

@@ -167,30 +167,43 @@ class PlanSpec:
             ok = ok and abs(d[2]) <= self.steps * self.max_dtheta
         return ok
 
-    def check_steps(self, commands, key: str) -> None:
-        """Refuse commands beyond the step bounds: a row ``(dx, dy, dtheta)`` (m, m, rad) of
-        ``commands`` (K, 3) whose in-plane length exceeds ``max_step``, or whose turn exceeds
-        ``max_dtheta`` with a yaw target (without one: half a turn, the command codec's
+    def step_excess(self, commands) -> tuple[int, str] | None:
+        """The first row of ``commands`` (K, 3) ``(dx, dy, dtheta)`` (m, m, rad) beyond the
+        step bounds and why (``"is a push of ... beyond plan.max_step = ..."``), or None: a
+        row whose in-plane length exceeds ``max_step``, or whose turn exceeds ``max_dtheta``
+        with a yaw target (without one: half a turn, the command codec's
         :data:`~pushplan.config.commands.MAX_TURN_DEG`), each by more than
         :data:`STEP_SLACK` of it: the bounds the planner's own commands keep, the physical
-        size of one push the scenario states.
-
-        Raises
-        ------
-        InputError
-            Naming ``key[k]``, the row and the bound it exceeds.
-        """
+        size of one push the scenario states.  The one test of them: :meth:`check_steps`
+        refuses what it finds, the Gauss-Newton correction
+        (:func:`~pushplan.planning.refine.gauss_newton_commands`) steps only where it finds none."""
         for k, (dx, dy, dtheta) in enumerate(commands):
             if math.hypot(dx, dy) > self.max_step * (1 + STEP_SLACK):
-                raise InputError(f"{key}[{k}]: {[float(dx), float(dy), float(dtheta)]} is a push of "
-                                 f"{math.hypot(dx, dy):.6g} m in the plane, beyond plan.max_step = {self.max_step:g} m "
-                                 "(the scenario's bound on one command)")
+                return k, (f"is a push of {math.hypot(dx, dy):.6g} m in the plane, beyond plan.max_step = "
+                           f"{self.max_step:g} m (the scenario's bound on one command)")
             turn = self.max_dtheta * (1 + STEP_SLACK) if self.yaw_targeted else math.radians(MAX_TURN_DEG)
             if abs(dtheta) > turn or (not self.yaw_targeted and abs(dtheta) == turn):
                 bound = (f"plan.max_dtheta_deg = {math.degrees(self.max_dtheta):g}" if self.yaw_targeted
                          else f"half a turn ({MAX_TURN_DEG:g} deg, exclusive)")
-                raise InputError(f"{key}[{k}]: {[float(dx), float(dy), float(dtheta)]} turns {math.degrees(dtheta):.6g} "
-                                 f"deg, beyond {bound} (the scenario's bound on one command)")
+                return k, f"turns {math.degrees(dtheta):.6g} deg, beyond {bound} (the scenario's bound on one command)"
+        return None
+
+    def check_steps(self, commands, key: str, name=None) -> None:
+        """Refuse commands (K, 3) ``(dx, dy, dtheta)`` (m, m, rad) beyond the step bounds
+        (:meth:`step_excess`).  ``name(k)`` names row k and its value in the message
+        (default ``key[k]: [dx, dy, dtheta]``).
+
+        Raises
+        ------
+        InputError
+            Naming the row, its value and the bound it exceeds.
+        """
+        found = self.step_excess(commands)
+        if found is None:
+            return
+        k, why = found
+        label = name(k) if name else f"{key}[{k}]: {[float(v) for v in commands[k]]}"
+        raise InputError(f"{label} {why}")
 
     def to_dict(self) -> dict:
         """The ``plan.json`` form: every setting (angles in degrees, None where unused) and the travel."""

@@ -13,10 +13,11 @@ objective (:mod:`.nlp`) with the FE pose linearised at ``u``:
 weight, m the number of commands: the least-squares solution of the stacked system
 ``[W^(1/2) J; E^(1/2)] d = -[W^(1/2) r; E^(1/2) u]``.  Without a yaw target the yaw row
 and the ``dtheta`` columns are left out (``dtheta = 0``).  The bounds are not in the
-step: a step that would leave them is refused (None) and the caller re-solves the NLP
-with the modifier instead.  Near the solution the step converges quadratically, where
-modifier adaptation converges linearly at the rate of the reduced model's gradient
-error (Marchetti et al. 2016, first-order modifiers: the same fixed point).
+step: a step that would leave them (:meth:`PlanSpec.step_excess`, the bounds every
+command is held to, with their slack ``STEP_SLACK``) is refused (None) and the caller
+re-solves the NLP with the modifier instead.  Near the solution the step converges
+quadratically, where modifier adaptation converges linearly at the rate of the reduced
+model's gradient error (Marchetti et al. 2016, first-order modifiers: the same fixed point).
 """
 
 from __future__ import annotations
@@ -27,14 +28,11 @@ from fe_contact import wrap_angle
 
 from ..config.plan import PlanSpec
 
-BOUND_SLACK = 1e-9
-"""A refined command may exceed its bound by this fraction (rounding), no more."""
-
 
 def gauss_newton_commands(commands: np.ndarray, final: np.ndarray, jacobian: np.ndarray,
                           spec: PlanSpec) -> np.ndarray | None:
     """The refined commands (m, 3) ``(dx, dy, dtheta)`` (m, rad), or None where they
-    would leave the step bounds.
+    would leave the step bounds (:meth:`PlanSpec.step_excess`).
 
     Parameters
     ----------
@@ -61,8 +59,4 @@ def gauss_newton_commands(commands: np.ndarray, final: np.ndarray, jacobian: np.
     d = np.linalg.lstsq(A, b, rcond=None)[0]
     refined = u.copy()
     refined[:, cols] = (x + d).reshape(m, len(cols))
-    if np.any(np.hypot(refined[:, 0], refined[:, 1]) > spec.max_step * (1 + BOUND_SLACK)):
-        return None
-    if spec.yaw_targeted and np.any(np.abs(refined[:, 2]) > spec.max_dtheta * (1 + BOUND_SLACK)):
-        return None
-    return refined
+    return None if spec.step_excess(refined) is not None else refined

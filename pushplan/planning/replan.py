@@ -50,7 +50,10 @@ def measured_start(scenario: Scenario, spec: PlanSpec, obs: Observations) -> Sta
     ------
     InputError
         The file does not start with the scenario's press, lacks the pose columns
-        (``lower_yaw_deg`` too for a yaw target), or has executed every planned step.
+        (``lower_yaw_deg`` too for a yaw target), has executed every planned step, or an
+        executed push is beyond the step bounds (:meth:`PlanSpec.check_steps`, as the
+        service's ``Replan`` refuses it: the re-plan continues from those pushes as if the
+        planner could have commanded them), naming its row and value.
     """
     press = press_commands(scenario)
     observed_press = leading_press(obs)
@@ -64,6 +67,12 @@ def measured_start(scenario: Scenario, spec: PlanSpec, obs: Observations) -> Sta
     executed = obs.commands[len(press):]
     if len(executed) >= spec.steps:
         raise InputError(f"observations: {len(executed)} pushes executed, plan.steps = {spec.steps}: nothing to re-plan")
+
+    def row(k):  # the file's row (counted from 1, the press first) and columns
+        c = executed[k]
+        return (f"observations: row {len(press) + k + 1} [dx, dy, dtheta_deg] = "
+                f"[{c.dx!r}, {c.dy!r}, {math.degrees(c.dtheta):.12g}]")
+    spec.check_steps([(c.dx, c.dy, c.dtheta) for c in executed], "executed", name=row)
     yaw = math.radians(obs.values["lower_yaw_deg"][-1]) if "lower_yaw_deg" in obs.values else 0.0
     return Start(executed, np.array([obs.values["lower_x"][-1], obs.values["lower_y"][-1], yaw]))
 
