@@ -26,7 +26,13 @@ from .model import Model, State, StepReport
 from .newton import Equilibrium
 from .pad_load import pad_normal_load
 
-__all__ = ["MIDPOINT_LOAD_TOL", "closed_contacts", "extrapolated", "midpoint_half", "missed_load", "two_halves"]
+__all__ = ["CONE_TOL", "MIDPOINT_LOAD_TOL", "closed_contacts", "contact_gaps", "extrapolated", "extrapolation_fraction",
+           "midpoint_half", "missed_load", "partial_state", "two_halves"]
+
+CONE_TOL = 1e-6
+"""A contact whose force is inside its cone by more than this fraction of its normal force at a load step's start
+sticks there (:func:`extrapolation_fraction`); a slipping contact's force is on the cone to the local solver's
+tolerance."""
 
 MIDPOINT_LOAD_TOL = 1e-6
 """A half step whose pad load missed its target by more than this fraction of the load scale ended past a jump
@@ -68,42 +74,129 @@ def extrapolated(model: Model, state: State, command: PadLoad, middle: State, fi
     order in the step); the next step starts from it, and the release's last
     step (to ``P = 0``) is backward Euler, so the rest is a solution.
 
-    None where the half step ended past a jump of the load (``MIDPOINT_LOAD_TOL``),
-    a contact opened or closed in it, the extrapolation pulls on a contact (a
-    normal force below zero: the midpoint rule does not damp a stiff contact's
-    oscillation, measured on a pad 100 x the floor's) or inverts an element: the
-    half step stands and a second backward-Euler step goes on to ``P_b``
-    (:func:`two_halves`).  ``t0`` (s, ``time.perf_counter``) the step's start.
-    Returns ``(State, StepReport)`` or None."""
-    U = 2.0 * middle.displacement - state.displacement
-    r = 2.0 * middle.reaction - state.reaction
+    Only where :func:`extrapolation_fraction` is 1 (the stepping loop asks it
+    first); otherwise the step goes on from :func:`partial_state` by a second
+    backward-Euler step (:func:`two_halves`).  ``t0`` (s, ``time.perf_counter``)
+    the step's start.  Returns ``(State, StepReport)``."""
+    end = partial_state(state, middle, 1.0)
+    U, r = end.displacement, end.reaction
     _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
-    if missed_load(model, state, first, midpoint_half(model, state, command).load) \
-            or np.any(closed_contacts(state.reaction) != closed_contacts(middle.reaction)) or np.any(r[:, 0] < 0) or not min_det > 0:
-        return None
-    translation = 2.0 * middle.upper_translation - state.upper_translation
-    rotation = 2.0 * middle.upper_rotation - state.upper_rotation
-    plate = 2.0 * middle.plate - state.plate  # a compliant gripper's plate pose (the commanded one if rigid)
-    end = replace(state, displacement=U, reaction=r, upper_translation=translation, upper_rotation=rotation,
-                  plate=plate, step_index=state.step_index + 1, tangent=None)
     eq = Equilibrium(first.status, "converged (implicit midpoint: the half step extrapolated)", U, r, None,
                      float(min_det), first.newton_residual, 0.0, first.iterations, first.tangent_updates, None,
                      first.timings)
-    taken = Command(*(translation - state.upper_translation), rotation - state.upper_rotation)
+    taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
     extra = None if model.gripper.rigid else {  # the springs' force k (c - p), linear in the state
-        "gripper_force": 2.0 * first.gripper_force - _gripper_force(model, state), "plate": plate}
+        "gripper_force": 2.0 * first.gripper_force - _gripper_force(model, state), "plate": end.plate}
     report = measure(model, state, taken, eq, t0, pad_loading(model, end), extra)
     return replace(end, slip_path=report.slip_path), report
 
 
-def two_halves(state: State, first: StepReport, end: State, second: StepReport):
-    """The load step from ``state`` taken as its half step (report ``first``) and a
-    second backward-Euler step to ``end`` (report ``second``, converged), where
-    :func:`extrapolated` may not extrapolate: ``(State, StepReport)``, the whole
-    step's command, both parts' Newton iterations."""
+def partial_state(state: State, middle: State, w: float) -> State:
+    """The half step ``S_m`` (``middle``) extrapolated by the fraction ``w`` of a half step,
+    ``S_w = S_m + w (S_m - S_a)`` (displacements, contact forces, the pad's pose, a compliant
+    gripper's plate): its pad load is ``P_m + w (P_m - P_a)`` (linear).  ``w = 0`` is ``middle``
+    itself, ``w = 1`` the whole step's extrapolation :func:`extrapolated`."""
+    if w == 0.0:
+        return middle
+
+    def ahead(name):
+        return (1.0 + w) * getattr(middle, name) - w * getattr(state, name)
+
+    return replace(middle, displacement=ahead("displacement"), reaction=ahead("reaction"),
+                   upper_translation=ahead("upper_translation"), upper_rotation=ahead("upper_rotation"),
+                   plate=ahead("plate"), slip_path=ahead("slip_path"), tangent=None)
+
+
+def extrapolation_fraction(model: Model, state: State, middle: State, first: StepReport, load: float) -> float:
+    """How far the half step ``S_a -> S_m`` (``state``, ``middle``; ``first`` its report, to the mid
+    load ``load``, N) may be extrapolated: the largest ``w`` in [0, 1] for which
+    ``S_w = S_m + w (S_m - S_a)`` (:func:`partial_state`) stays admissible along the way, each
+    contact on the branch of the contact law it held at ``S_a``:
+
+    - closed at ``S_a`` (:func:`closed_contacts`): ``r_n(w) >= 0``, i.e. ``w <= r_n,m / (r_n,a - r_n,m)``
+      where its force falls (0 where it opened in the half step);
+    - open at ``S_a``: its gap ``g(w) >= 0``, ``w <= g_m / (g_a - g_m)`` where it closes (0 where it
+      closed in the half step);
+    - inside its elliptic cone at ``S_a`` (by more than ``CONE_TOL``): inside along the way, ``w <=`` the
+      first exit of the line ``r(w)`` from the cone (a quadratic in ``w``; 0 where it left in the half
+      step).  A contact on the cone at ``S_a`` slips: its force's second-order overshoot of the cone
+      is the midpoint rule's and no constraint.
+
+    Each bound is continuous in the data and tends to 0 where the contact's event tends to the mid
+    instant from either side, so the step (:func:`extrapolated` at ``w = 1``, else a backward-Euler
+    step from ``S_w``, :func:`two_halves`) is continuous there; where the event tends to ``S_a``
+    (a contact on the edge of its branch at the step's start) ``w`` jumps (docs/release.md).  0 where
+    the half step ended past a jump of the load (:func:`missed_load`) or ``S_w`` would invert an
+    element."""
+    if missed_load(model, state, first, load):
+        return 0.0
+    ra, rm = state.reaction, middle.reaction
+    closed = closed_contacts(ra)
+    w = min(1.0, _linear_exit(ra[closed, 0], rm[closed, 0]))
+    ga, gm = contact_gaps(model, state), contact_gaps(model, middle)
+    w = min(w, _linear_exit(ga[~closed], gm[~closed]))
+    mu = np.stack([model.contacts.mu_x, model.contacts.mu_y], axis=1)
+    inside = closed & (np.linalg.norm(ra[:, 1:] / mu, axis=1) < (1.0 - CONE_TOL) * ra[:, 0])
+    if np.any(inside):
+        w = min(w, float(_cone_exit(ra[inside], rm[inside], mu[inside]).min()))
+    w = max(w, 0.0)
+    if w > 0.0:
+        _, min_det = internal_force(model.geometry, model.mesh.elements, partial_state(state, middle, w).displacement,
+                                    model.material)
+        if not min_det > 0:
+            return 0.0
+    return w
+
+
+def _linear_exit(a: np.ndarray, m: np.ndarray) -> float:
+    """The smallest ``w >= 0`` (inf if none) at which ``m + w (m - a)`` reaches 0 from ``a >= 0``,
+    ``m >= 0`` (0 where ``m`` is already 0 and ``a`` was not)."""
+    falling = m < a
+    if not np.any(falling):
+        return np.inf
+    return float(np.min(np.maximum(m[falling], 0.0) / (a[falling] - m[falling])))
+
+
+def _cone_exit(ra: np.ndarray, rm: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """For contacts (k,) inside their cone ``|M^-1 r_t| <= r_n`` at ``ra`` (k, 3), the first
+    ``w > -1`` at which ``r(w) = rm + w (rm - ra)`` leaves it (``r(-1) = ra``), clipped at 0; inf if
+    never: the smaller root above -1 of ``|M^-1 t(w)|^2 - n(w)^2`` with ``n(w) >= 0``."""
+    d = rm - ra
+    t0, dt = rm[:, 1:] / mu, d[:, 1:] / mu
+    A = (dt * dt).sum(axis=1) - d[:, 0] ** 2
+    B = 2.0 * ((t0 * dt).sum(axis=1) - rm[:, 0] * d[:, 0])
+    C = (t0 * t0).sum(axis=1) - rm[:, 0] ** 2
+    disc = np.maximum(B * B - 4.0 * A * C, 0.0)
+    sq = np.sqrt(disc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roots = np.stack([(-B - sq) / (2.0 * A), (-B + sq) / (2.0 * A), -C / B])  # the last: A = 0
+    linear = np.abs(A) <= 1e-14 * (np.abs(B) + np.abs(C))
+    roots[:2, linear] = np.nan
+    roots[2, ~linear] = np.nan
+    normal = rm[:, 0] + roots * d[:, 0]
+    valid = np.isfinite(roots) & (roots > -1.0) & (normal >= 0.0)
+    first = np.where(valid, roots, np.inf).min(axis=0)
+    return np.maximum(first, 0.0)
+
+
+def contact_gaps(model: Model, state: State) -> np.ndarray:
+    """The contacts' gaps (n_contacts,), m, at ``state`` (the pad's at its pose)."""
+    nodes = model.contacts.nodes
+    x = model.mesh.nodes[nodes] + state.displacement[nodes]
+    zero = np.zeros_like(x)
+    return model.contacts.kinematics(x, zero, zero, np.asarray(state.upper_translation, float))[0]
+
+
+def two_halves(state: State, first: StepReport, end: State, second: StepReport, w: float = 0.0):
+    """The load step from ``state`` taken as its half step (report ``first``), extrapolated by the
+    fraction ``w`` of it (:func:`extrapolation_fraction`, < 1; 0: the half step itself), and a
+    second backward-Euler step from there to ``end`` (report ``second``, converged):
+    ``(State, StepReport)``, the whole step's command, both parts' Newton iterations."""
     taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
-    return replace(end, step_index=state.step_index + 1), joined_report(
-        state, first, second, taken, "converged in two backward-Euler halves (a contact opened or closed)")
+    how = "two backward-Euler halves" if w == 0.0 else f"the half step extrapolated by {w:.6g} of it, then backward Euler"
+    report = joined_report(state, first, second, taken, f"converged in {how} (a contact at an event of its law)")
+    return replace(end, step_index=state.step_index + 1), replace(
+        report, slip_increment=(1.0 + w) * first.slip_increment + second.slip_increment)
 
 
 def _gripper_force(model: Model, state: State) -> np.ndarray:
