@@ -27,6 +27,7 @@ from .newton import Equilibrium
 from .pad_load import pad_normal_load
 
 __all__ = ["CONE_TOL", "MIDPOINT_LOAD_TOL", "closed_contacts", "contact_gaps", "extrapolated", "extrapolation_fraction",
+           "fraction_bounds",
            "midpoint_half", "missed_load", "partial_state", "two_halves"]
 
 CONE_TOL = 1e-6
@@ -102,7 +103,9 @@ def partial_state(state: State, middle: State, w: float) -> State:
     def ahead(name):
         return (1.0 + w) * getattr(middle, name) - w * getattr(state, name)
 
-    return replace(middle, displacement=ahead("displacement"), reaction=ahead("reaction"),
+    r = ahead("reaction")
+    r[~closed_contacts(middle.reaction)] = 0.0  # open at the mid load: stays open
+    return replace(middle, displacement=ahead("displacement"), reaction=r,
                    upper_translation=ahead("upper_translation"), upper_rotation=ahead("upper_rotation"),
                    plate=ahead("plate"), slip_path=ahead("slip_path"), tangent=None)
 
@@ -110,36 +113,16 @@ def partial_state(state: State, middle: State, w: float) -> State:
 def extrapolation_fraction(model: Model, state: State, middle: State, first: StepReport, load: float) -> float:
     """How far the half step ``S_a -> S_m`` (``state``, ``middle``; ``first`` its report, to the mid
     load ``load``, N) may be extrapolated: the largest ``w`` in [0, 1] for which
-    ``S_w = S_m + w (S_m - S_a)`` (:func:`partial_state`) stays admissible along the way, each
-    contact on the branch of the contact law it held at ``S_a``:
-
-    - closed at ``S_a`` (:func:`closed_contacts`): ``r_n(w) >= 0``, i.e. ``w <= r_n,m / (r_n,a - r_n,m)``
-      where its force falls (0 where it opened in the half step);
-    - open at ``S_a``: its gap ``g(w) >= 0``, ``w <= g_m / (g_a - g_m)`` where it closes (0 where it
-      closed in the half step);
-    - inside its elliptic cone at ``S_a`` (by more than ``CONE_TOL``): inside along the way, ``w <=`` the
-      first exit of the line ``r(w)`` from the cone (a quadratic in ``w``; 0 where it left in the half
-      step).  A contact on the cone at ``S_a`` slips: its force's second-order overshoot of the cone
-      is the midpoint rule's and no constraint.
-
-    Each bound is continuous in the data and tends to 0 where the contact's event tends to the mid
-    instant from either side, so the step (:func:`extrapolated` at ``w = 1``, else a backward-Euler
-    step from ``S_w``, :func:`two_halves`) is continuous there; where the event tends to ``S_a``
-    (a contact on the edge of its branch at the step's start) ``w`` jumps (docs/release.md).  0 where
-    the half step ended past a jump of the load (:func:`missed_load`) or ``S_w`` would invert an
-    element."""
+    ``S_w = S_m + w (S_m - S_a)`` (:func:`partial_state`) keeps each contact on the branch of the
+    contact law it holds at ``S_m`` (:func:`fraction_bounds`), 0 where the half step ended past a
+    jump of the load (:func:`missed_load`) or ``S_w`` would invert an element.  ``w = 1`` is the
+    midpoint rule (:func:`extrapolated`); below, a backward-Euler step from ``S_w`` ends the step
+    (:func:`two_halves`).  Each bound is continuous in the data and tends to 0 as its contact's
+    event (opening, closing, leaving the cone) tends to the mid load from above; where the event
+    tends to the end of the step, ``w`` tends to 1 (docs/release.md)."""
     if missed_load(model, state, first, load):
         return 0.0
-    ra, rm = state.reaction, middle.reaction
-    closed = closed_contacts(ra)
-    w = min(1.0, _linear_exit(ra[closed, 0], rm[closed, 0]))
-    ga, gm = contact_gaps(model, state), contact_gaps(model, middle)
-    w = min(w, _linear_exit(ga[~closed], gm[~closed]))
-    mu = np.stack([model.contacts.mu_x, model.contacts.mu_y], axis=1)
-    inside = closed & (np.linalg.norm(ra[:, 1:] / mu, axis=1) < (1.0 - CONE_TOL) * ra[:, 0])
-    if np.any(inside):
-        w = min(w, float(_cone_exit(ra[inside], rm[inside], mu[inside]).min()))
-    w = max(w, 0.0)
+    w = float(np.clip(np.min(fraction_bounds(model, state, middle)[0], initial=1.0), 0.0, 1.0))
     if w > 0.0:
         _, min_det = internal_force(model.geometry, model.mesh.elements, partial_state(state, middle, w).displacement,
                                     model.material)
@@ -148,35 +131,54 @@ def extrapolation_fraction(model: Model, state: State, middle: State, first: Ste
     return w
 
 
-def _linear_exit(a: np.ndarray, m: np.ndarray) -> float:
-    """The smallest ``w >= 0`` (inf if none) at which ``m + w (m - a)`` reaches 0 from ``a >= 0``,
-    ``m >= 0`` (0 where ``m`` is already 0 and ``a`` was not)."""
-    falling = m < a
-    if not np.any(falling):
-        return np.inf
-    return float(np.min(np.maximum(m[falling], 0.0) / (a[falling] - m[falling])))
+def fraction_bounds(model: Model, state: State, middle: State) -> tuple[np.ndarray, np.ndarray]:
+    """Each contact's bound on the extrapolation fraction ``w`` (:func:`extrapolation_fraction`)
+    and its kind (n_contacts,): the ``w`` at which the linear extrapolation ``x(w) = x_m + w (x_m -
+    x_a)`` takes it off the branch it holds at ``S_m`` (inf if never):
+
+    - ``"force"``, closed at ``S_m`` (:func:`closed_contacts`): its normal force reaches 0,
+      ``w = r_n,m / (r_n,a - r_n,m)`` where it falls;
+    - ``"gap"``, open at ``S_m``: its gap (:func:`contact_gaps`) reaches 0, ``w = g_m / (g_a -
+      g_m)`` where it closes;
+    - ``"cone"``, inside its elliptic cone at ``S_m`` by more than ``CONE_TOL`` (it sticks): its
+      force reaches the cone ``|M^-1 r_t| = r_n`` (the first root ``w > 0`` of a quadratic).
+
+    A contact on its cone at ``S_m`` slips: the second-order overshoot of its extrapolated force is
+    the midpoint rule's and no bound."""
+    ra, rm = state.reaction, middle.reaction
+    n = ra.shape[0]
+    bound, kind = np.full(n, np.inf), np.full(n, "", dtype=object)
+    closed = closed_contacts(rm)
+    falling = closed & (rm[:, 0] < ra[:, 0])
+    bound[falling] = rm[falling, 0] / (ra[falling, 0] - rm[falling, 0])
+    kind[falling] = "force"
+    ga, gm = contact_gaps(model, state), contact_gaps(model, middle)
+    closing = ~closed & (gm < ga)
+    bound[closing] = np.maximum(gm[closing], 0.0) / (ga[closing] - gm[closing])
+    kind[closing] = "gap"
+    mu = np.stack([model.contacts.mu_x, model.contacts.mu_y], axis=1)
+    inside = closed & (np.linalg.norm(rm[:, 1:] / mu, axis=1) < (1.0 - CONE_TOL) * rm[:, 0])
+    cone = np.full(n, np.inf)
+    cone[inside] = _cone_exit(ra[inside], rm[inside], mu[inside])
+    kind[cone < bound] = "cone"
+    return np.minimum(bound, cone), kind
 
 
 def _cone_exit(ra: np.ndarray, rm: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    """For contacts (k,) inside their cone ``|M^-1 r_t| <= r_n`` at ``ra`` (k, 3), the first
-    ``w > -1`` at which ``r(w) = rm + w (rm - ra)`` leaves it (``r(-1) = ra``), clipped at 0; inf if
-    never: the smaller root above -1 of ``|M^-1 t(w)|^2 - n(w)^2`` with ``n(w) >= 0``."""
+    """For contacts (k,) inside their cone ``|M^-1 r_t| <= r_n`` at ``rm`` (k, 3), the first
+    ``w > 0`` at which ``r(w) = rm + w (rm - ra)`` leaves it, inf if never: the smallest positive
+    root of ``|M^-1 t(w)|^2 - n(w)^2`` with ``n(w) >= 0``."""
     d = rm - ra
     t0, dt = rm[:, 1:] / mu, d[:, 1:] / mu
     A = (dt * dt).sum(axis=1) - d[:, 0] ** 2
     B = 2.0 * ((t0 * dt).sum(axis=1) - rm[:, 0] * d[:, 0])
     C = (t0 * t0).sum(axis=1) - rm[:, 0] ** 2
-    disc = np.maximum(B * B - 4.0 * A * C, 0.0)
-    sq = np.sqrt(disc)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        roots = np.stack([(-B - sq) / (2.0 * A), (-B + sq) / (2.0 * A), -C / B])  # the last: A = 0
+    sq = np.sqrt(np.maximum(B * B - 4.0 * A * C, 0.0))
     linear = np.abs(A) <= 1e-14 * (np.abs(B) + np.abs(C))
-    roots[:2, linear] = np.nan
-    roots[2, ~linear] = np.nan
-    normal = rm[:, 0] + roots * d[:, 0]
-    valid = np.isfinite(roots) & (roots > -1.0) & (normal >= 0.0)
-    first = np.where(valid, roots, np.inf).min(axis=0)
-    return np.maximum(first, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roots = np.where(linear, np.stack([-C / B, -C / B]), np.stack([(-B - sq) / (2.0 * A), (-B + sq) / (2.0 * A)]))
+    valid = np.isfinite(roots) & (roots > 0.0) & (rm[:, 0] + roots * d[:, 0] >= 0.0)
+    return np.where(valid, roots, np.inf).min(axis=0)
 
 
 def contact_gaps(model: Model, state: State) -> np.ndarray:
