@@ -20,7 +20,7 @@ import numpy as np
 
 from ..fem.elasticity import internal_force
 from .command import Command, PadLoad
-from .held import joined_report, pad_loading
+from .held import pad_loading
 from .measure import SEPARATION_FORCE, measure
 from .model import Model, State, StepReport
 from .newton import Equilibrium
@@ -28,7 +28,7 @@ from .pad_load import pad_normal_load
 
 __all__ = ["CONE_TOL", "MIDPOINT_LOAD_TOL", "closed_contacts", "contact_gaps", "extrapolated", "extrapolation_fraction",
            "fraction_bounds",
-           "joined", "midpoint_half", "missed_load", "partial_state"]
+           "midpoint_half", "missed_load", "partial_state"]
 
 CONE_TOL = 1e-6
 """A contact whose force is inside its cone by more than this fraction of its normal force at a load step's start
@@ -193,17 +193,6 @@ def contact_gaps(model: Model, state: State) -> np.ndarray:
     x = model.mesh.nodes[nodes] + state.displacement[nodes]
     zero = np.zeros_like(x)
     return model.contacts.kinematics(x, zero, zero, np.asarray(state.upper_translation, float))[0]
-
-
-def joined(state: State, first: StepReport, end: State, second: StepReport, w: float):
-    """The load step from ``state`` taken as its half step extrapolated by ``w < 1`` (report
-    ``first``, :func:`extrapolated`) and a backward-Euler step from there to ``end`` (report
-    ``second``, converged): ``(State, StepReport)``, the whole step's command, both parts'
-    Newton iterations and slip."""
-    taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
-    report = joined_report(state, first, second, taken,
-                           f"converged in the half step extrapolated by {w:.6g} of it, then backward Euler")
-    return replace(end, step_index=state.step_index + 1), report
 
 
 def _gripper_force(model: Model, state: State) -> np.ndarray:

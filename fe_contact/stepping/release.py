@@ -215,11 +215,6 @@ class ReleaseSchedule:
         self.taken += command is not None
         return command
 
-    @property
-    def last_load_step(self) -> bool:
-        """Whether the pad's load step just chosen is the last before the one to zero."""
-        return self.load_step >= self.release.steps - 1
-
     def midpoint(self, command) -> bool:
         """Whether ``command`` is taken by the implicit midpoint rule
         (:mod:`fe_contact.stepping.midpoint`): a frictional pad's load step to a load

@@ -239,18 +239,20 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
     if any(part[2].converged and "half steps" in part[2].message for part in taken):
         return Status.TANGENT_SINGULAR, (f"{where}: a load step taken in parts (its load half way, then the whole): "
                                          "its derivative through them is not available")
-    if step.midpoint:  # the half step extrapolated by w: all of it, or the step ends there, or then backward Euler
+    middle = middle_load(model, state, step)
+    w = 0.0
+    if step.midpoint:
         if not taken or not taken[0][2].converged:
             return Status.TANGENT_SINGULAR, f"{where}: the midpoint's half step was not found"
-        middle = middle_load(model, state, step)
         w = extrapolation_fraction(model, state, taken[0][1], taken[0][2], middle[0])
+    if w > 0.0:  # the half step extrapolated by w: all of it, or then a backward-Euler step
         half = _rooted(model, taken[0], d_state, *middle, step, where)
         if isinstance(half[0], Status):
             return half
         if w == 1.0:
             return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
         return _partial(model, state, taken, new_state, report, d_state, half, w, step, where)
-    loads = [(step.load, step.d_load)]
+    loads = [middle, (step.load, step.d_load)] if step.midpoint else [(step.load, step.d_load)]
     if not chain or len(chain) != len(loads):
         return Status.TANGENT_SINGULAR, f"{where}: the parts it was taken in were not found"
     found = []
@@ -341,29 +343,21 @@ def _ahead(middle: State, d_start, d_mid, w: float, moved=None):
 
 def _partial(model, state: State, taken: list, new_state: State, report: StepReport, d_state, half, w: float,
              step: LoadStep, where: str):
-    """A midpoint load step whose half step was extrapolated by ``0 <= w < 1``
-    (:func:`~fe_contact.stepping.midpoint.extrapolation_fraction`): ``dS_w`` with ``w``'s own
-    derivative (:func:`_fraction_derivative`); the step ended there (its pad load ``P_w``: the
-    outputs' ``dF_w = (1 + w) dF_m - w dF_a + (F_m - F_a) dw``) or, the last before the step to
-    zero, went on by a backward-Euler step to ``P_b`` (its rooted derivatives, :func:`_rooted`)."""
+    """A midpoint load step whose half step was extrapolated by ``0 < w < 1`` and ended by a
+    backward-Euler step from there (:func:`~fe_contact.stepping.midpoint.extrapolation_fraction`):
+    ``dS_w`` with ``w``'s own derivative (:func:`_fraction_derivative`), then that step's
+    rooted derivatives (:func:`_rooted`)."""
     middle, d_mid = taken[0][1], half[1]
-    dw = _fraction_derivative(model, state, middle, w, (d_state, d_mid), step.seeds) if w > 0.0 else \
-        np.zeros(d_mid.displacement.shape[1])
+    dw = _fraction_derivative(model, state, middle, w, (d_state, d_mid), step.seeds)
     if dw is None:
         return Status.TANGENT_SINGULAR, (f"{where}: the midpoint's extrapolation fraction {w:.6g} is set by two "
                                          "contacts at once (or their forces' derivatives are not followed): "
                                          "its derivative is not available")
-    d_w = _ahead(middle, d_state, d_mid, w, (state, dw))
     goal = new_state.displacement.tobytes()
     last = [part for part in taken[1:] if part[2].converged and part[1].displacement.tobytes() == goal]
-    if not last:  # the step ended at S_w
-        d_start_out = np.array(step.d_start_out)
-        d_start_out[:, -1] = 0.0
-        forces = (1.0 + w) * half[3][3:6] - w * d_start_out[3:6]
-        if w > 0.0:  # F_m - F_a = (F_w - F_m) / w: the forces are linear in the state
-            forces = forces + np.outer((report.upper_force - taken[0][2].upper_force) / w, dw)
-        d_out = np.vstack([lower_pose_derivative(model, new_state.displacement, d_w.displacement), forces, d_w.plate])
-        return new_state, d_w, report_outputs(report, new_state), d_out, [half[4]]
+    if not last:
+        return Status.TANGENT_SINGULAR, f"{where}: the backward-Euler step after the extrapolation was not found"
+    d_w = _ahead(middle, d_state, d_mid, w, (state, dw))
     result = _rooted(model, last[0], d_w, step.load, step.d_load, step, where)
     if isinstance(result[0], Status):
         return result

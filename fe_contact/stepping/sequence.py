@@ -19,7 +19,7 @@ from .model import Model, State, StepReport, initial_state
 from .pad_load import pad_normal_load
 from .predictor import load_path_guess
 from .release import Release, ReleaseSchedule, rest_check
-from .midpoint import closed_contacts, extrapolated, extrapolation_fraction, joined, midpoint_half
+from .midpoint import closed_contacts, extrapolated, extrapolation_fraction, midpoint_half
 from .step import step
 
 
@@ -104,14 +104,6 @@ class StepSequence:
         w = extrapolation_fraction(self.model, start, middle, first, half.load)
         end = extrapolated(self.model, start, command, middle, first, t0, w)
         self._path = (middle, end[0]) if w > 0 else (start, end[0])
-        if w < 1.0 and self.schedule.last_load_step:  # the last before the step to zero: its own end load
-            last, second = self._step(self.model, end[0], command, consume=True,
-                                      guess=self._load_guess(end[0], command.load))
-            self._path = None
-            if not second.converged:
-                return end[0], second
-            end = joined(start, end[1], last, second, w)
-            self._path = (middle, end[0])
         return end
 
     def _load_guess(self, start: State, load: float):
