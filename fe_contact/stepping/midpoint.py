@@ -20,7 +20,7 @@ import numpy as np
 
 from ..fem.elasticity import internal_force
 from .command import Command, PadLoad
-from .held import pad_loading
+from .held import joined_report, pad_loading
 from .measure import SEPARATION_FORCE, measure
 from .model import Model, State, StepReport
 from .newton import Equilibrium
@@ -28,7 +28,7 @@ from .pad_load import pad_normal_load
 
 __all__ = ["CONE_TOL", "MIDPOINT_LOAD_TOL", "closed_contacts", "contact_gaps", "extrapolated", "extrapolation_fraction",
            "fraction_bounds",
-           "midpoint_half", "missed_load", "partial_state"]
+           "midpoint_half", "missed_load", "partial_state", "two_halves"]
 
 CONE_TOL = 1e-6
 """A contact whose force is inside its cone by more than this fraction of its normal force at a load step's start
@@ -53,13 +53,13 @@ def midpoint_half(model: Model, state: State, command: PadLoad) -> PadLoad:
     ``P_b = command.load`` by the implicit midpoint rule: the backward-Euler step
     (:func:`~fe_contact.stepping.step.step`) to the mid load ``P_m = (P_a + P_b) / 2``.
     The stepping loop (:class:`~fe_contact.stepping.sequence.StepSequence`) takes it,
-    then :func:`extrapolated` by :func:`extrapolation_fraction`: one step solve a
-    load step."""
+    then :func:`extrapolated`, and where that returns None a second backward-Euler
+    step from the half step to ``P_b`` (:func:`two_halves`): at most two step solves
+    per load step."""
     return replace(command, load=0.5 * (pad_normal_load(model, state) + command.load))
 
 
-def extrapolated(model: Model, state: State, command: PadLoad, middle: State, first: StepReport, t0: float,
-                 w: float = 1.0):
+def extrapolated(model: Model, state: State, command: PadLoad, middle: State, first: StepReport, t0: float):
     """The end of the midpoint load step from ``state`` to ``command.load``, its half
     step ``(middle, first)`` (:func:`midpoint_half`, converged) extrapolated linearly,
 
@@ -75,27 +75,21 @@ def extrapolated(model: Model, state: State, command: PadLoad, middle: State, fi
     order in the step); the next step starts from it, and the release's last
     step (to ``P = 0``) is backward Euler, so the rest is a solution.
 
-    With ``w < 1`` (:func:`extrapolation_fraction`: a contact would leave its branch
-    within the step) the step ends at ``S_w = S_m + w (S_m - S_a)`` (:func:`partial_state`),
-    at the pad load ``P_w = P_m + w (P_m - P_a)`` between ``P_m`` and ``P_b``, and the
-    schedule's next step goes on from there: one step solve a load step either way, and
-    the end continuous in ``w`` (``S_m`` at 0, ``S_b`` at 1).  Its local error, ``(1 - w^2)
-    h^2 S'' / 8`` for a load step ``h``, is backward Euler's at ``w = 0`` and vanishes at
-    ``w = 1``.  ``t0`` (s, ``time.perf_counter``) the step's start.  Returns ``(State,
-    StepReport)``."""
-    end = partial_state(state, middle, w)
+    Only where :func:`extrapolation_fraction` is 1 (the stepping loop asks it
+    first); otherwise the step goes on from :func:`partial_state` by a second
+    backward-Euler step (:func:`two_halves`).  ``t0`` (s, ``time.perf_counter``)
+    the step's start.  Returns ``(State, StepReport)``."""
+    end = partial_state(state, middle, 1.0)
     U, r = end.displacement, end.reaction
     _, min_det = internal_force(model.geometry, model.mesh.elements, U, model.material)
-    how = "the half step extrapolated" if w == 1.0 else \
-        f"the half step extrapolated by {w:.6g} of it, the step ended at the pad load {pad_normal_load(model, end):.6g} N"
-    eq = Equilibrium(first.status, f"converged (implicit midpoint: {how})", U, r, None,
+    eq = Equilibrium(first.status, "converged (implicit midpoint: the half step extrapolated)", U, r, None,
                      float(min_det), first.newton_residual, 0.0, first.iterations, first.tangent_updates, None,
                      first.timings)
     taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
     extra = None if model.gripper.rigid else {  # the springs' force k (c - p), linear in the state
-        "gripper_force": (1.0 + w) * first.gripper_force - w * _gripper_force(model, state), "plate": end.plate}
+        "gripper_force": 2.0 * first.gripper_force - _gripper_force(model, state), "plate": end.plate}
     report = measure(model, state, taken, eq, t0, pad_loading(model, end), extra)
-    return replace(end, slip_path=report.slip_path, step_index=state.step_index + 1), report
+    return replace(end, slip_path=report.slip_path), report
 
 
 def partial_state(state: State, middle: State, w: float) -> State:
@@ -122,10 +116,10 @@ def extrapolation_fraction(model: Model, state: State, middle: State, first: Ste
     ``S_w = S_m + w (S_m - S_a)`` (:func:`partial_state`) keeps each contact on the branch of the
     contact law it holds at ``S_m`` (:func:`fraction_bounds`), 0 where the half step ended past a
     jump of the load (:func:`missed_load`) or ``S_w`` would invert an element.  ``w = 1`` is the
-    midpoint rule; below, the step ends at ``S_w`` (:func:`extrapolated`).  Each bound is
-    continuous in the data and tends to 0 as its contact's event (opening, closing, leaving the
-    cone) tends to the mid load from above; where the event tends to the end of the step, ``w``
-    tends to 1 (docs/release.md)."""
+    midpoint rule (:func:`extrapolated`); below, a backward-Euler step from ``S_w`` ends the step
+    (:func:`two_halves`).  Each bound is continuous in the data and tends to 0 as its contact's
+    event (opening, closing, leaving the cone) tends to the mid load from above; where the event
+    tends to the end of the step, ``w`` tends to 1 (docs/release.md)."""
     if missed_load(model, state, first, load):
         return 0.0
     w = float(np.clip(np.min(fraction_bounds(model, state, middle)[0], initial=1.0), 0.0, 1.0))
@@ -193,6 +187,18 @@ def contact_gaps(model: Model, state: State) -> np.ndarray:
     x = model.mesh.nodes[nodes] + state.displacement[nodes]
     zero = np.zeros_like(x)
     return model.contacts.kinematics(x, zero, zero, np.asarray(state.upper_translation, float))[0]
+
+
+def two_halves(state: State, first: StepReport, end: State, second: StepReport, w: float = 0.0):
+    """The load step from ``state`` taken as its half step (report ``first``), extrapolated by the
+    fraction ``w`` of it (:func:`extrapolation_fraction`, < 1; 0: the half step itself), and a
+    second backward-Euler step from there to ``end`` (report ``second``, converged):
+    ``(State, StepReport)``, the whole step's command, both parts' Newton iterations."""
+    taken = Command(*(end.upper_translation - state.upper_translation), end.upper_rotation - state.upper_rotation)
+    how = "two backward-Euler halves" if w == 0.0 else f"the half step extrapolated by {w:.6g} of it, then backward Euler"
+    report = joined_report(state, first, second, taken, f"converged in {how} (a contact at an event of its law)")
+    return replace(end, step_index=state.step_index + 1), replace(
+        report, slip_increment=(1.0 + w) * first.slip_increment + second.slip_increment)
 
 
 def _gripper_force(model: Model, state: State) -> np.ndarray:
