@@ -12,7 +12,6 @@ and 1.0027 at 1e-8 m.  Now both are 0.996405, as is the rollout's exact derivati
 
 import math
 
-import numpy as np
 import pytest
 
 from fe_contact import Command, Friction, Material, Model, Release, block_mesh, release_to_rest, run
