@@ -10,6 +10,13 @@ Backward Euler takes each contact's slip along the chord with the slip direction
 end of the step: first order in the load step where every contact slips through the
 unloading (``benchmarks/release_error_source.py``); the midpoint's slip direction is the
 mid-step's: second order where no contact changes state (docs/release.md).
+
+The extrapolation goes as far as every contact stays on the branch of the contact law it
+holds at the mid load (:func:`extrapolation_fraction`: its normal force, gap or friction
+cone), ``S_w = S_m + w (S_m - S_a)`` with ``w`` in [0, 1] continuous in the data; where
+``w < 1`` a backward-Euler step from ``S_w`` to ``P_b`` ends the load step (at most two step
+solves).  The rule before it chose between ``w = 1`` and ``w = 0`` by a threshold on the
+contact forces, and the rest pose jumped where a contact sat at it.
 """
 
 from __future__ import annotations

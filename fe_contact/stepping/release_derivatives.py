@@ -34,12 +34,19 @@ differentiates as
 the path), ``dP_b`` the schedule's (:func:`~fe_contact.stepping.release.pad_load_schedule`).
 The outputs at ``S_b``: the lower face's pose of ``U_b``, the pad's force ``2 F_m -
 F_a`` (linear in the contact forces), the plate's pose ``2 p_m - p_a``.  Where the
-step fell back to two backward-Euler halves (a contact opened or closed, a normal
-force below zero, an inverted element, a jump of the load), ``S_b = BE(BE(S_a, P_m),
-P_b)``: two sensitivities, each with its own height's root.  Which branch the step
-took is the run's discrete choice; the branch margins checked
+half step may be extrapolated only by ``w < 1``
+(:func:`~fe_contact.stepping.midpoint.extrapolation_fraction`: a contact would leave its
+branch of the contact law; 0 at a jump of the load or an inverted element) and a
+backward-Euler step from ``S_w = S_m + w (S_m - S_a)`` ends the step,
+
+    dS_w = (1 + w) dS_m - w dS_a + (S_m - S_a) dw,    S_b = BE(S_w, P_b),
+
+``dw`` the derivative of the contact's bound that sets ``w`` (:func:`_fraction_derivative`,
+which reads the contact forces' derivatives that
+:class:`~fe_contact.stepping.step_derivative.StateDerivative` carries): two
+sensitivities, each with its own height's root.  The branch margins checked
 (:mod:`~fe_contact.stepping.transitions`) are those of the contacts at each
-backward-Euler solve's end (``S_m``, and ``S_b`` after a fallback).
+backward-Euler solve's end (``S_m``, and ``S_b`` where ``w < 1``).
 """
 
 from __future__ import annotations
