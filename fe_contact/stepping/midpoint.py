@@ -110,9 +110,7 @@ def partial_state(state: State, middle: State, w: float) -> State:
     def ahead(name):
         return (1.0 + w) * getattr(middle, name) - w * getattr(state, name)
 
-    r = ahead("reaction")
-    r[~closed_contacts(middle.reaction)] = 0.0  # open at the mid load: stays open
-    return replace(middle, displacement=ahead("displacement"), reaction=r,
+    return replace(middle, displacement=ahead("displacement"), reaction=ahead("reaction"),
                    upper_translation=ahead("upper_translation"), upper_rotation=ahead("upper_rotation"),
                    plate=ahead("plate"), slip_path=ahead("slip_path"), tangent=None)
 
@@ -144,9 +142,10 @@ def fraction_bounds(model: Model, state: State, middle: State) -> tuple[np.ndarr
     x_a)`` takes it off the branch it holds at ``S_m`` (inf if never):
 
     - ``"force"``, closed at ``S_m`` (:func:`closed_contacts`): its normal force reaches 0,
-      ``w = r_n,m / (r_n,a - r_n,m)`` where it falls;
+      ``w = r_n,m / (r_n,a - r_n,m)`` where it falls (0 where it was open at ``S_a``: its gap
+      would turn negative);
     - ``"gap"``, open at ``S_m``: its gap (:func:`contact_gaps`) reaches 0, ``w = g_m / (g_a -
-      g_m)`` where it closes;
+      g_m)`` where it closes (0 where it was closed at ``S_a``: its force would turn negative);
     - ``"cone"``, inside its elliptic cone at ``S_m`` by more than ``CONE_TOL`` (it sticks): its
       force reaches the cone ``|M^-1 r_t| = r_n`` (the first root ``w > 0`` of a quadratic).
 
@@ -155,7 +154,7 @@ def fraction_bounds(model: Model, state: State, middle: State) -> tuple[np.ndarr
     ra, rm = state.reaction, middle.reaction
     n = ra.shape[0]
     bound, kind = np.full(n, np.inf), np.full(n, "", dtype=object)
-    closed = closed_contacts(rm)
+    closed, was_closed = closed_contacts(rm), closed_contacts(ra)
     falling = closed & (rm[:, 0] < ra[:, 0])
     bound[falling] = rm[falling, 0] / (ra[falling, 0] - rm[falling, 0])
     kind[falling] = "force"
@@ -163,6 +162,9 @@ def fraction_bounds(model: Model, state: State, middle: State) -> tuple[np.ndarr
     closing = ~closed & (gm < ga)
     bound[closing] = np.maximum(gm[closing], 0.0) / (ga[closing] - gm[closing])
     kind[closing] = "gap"
+    changed = closed != was_closed  # opened or closed in the half step: its force or gap would change sign
+    bound[changed] = 0.0
+    kind[changed] = np.where(closed[changed], "gap", "force")
     mu = np.stack([model.contacts.mu_x, model.contacts.mu_y], axis=1)
     inside = closed & (np.linalg.norm(rm[:, 1:] / mu, axis=1) < (1.0 - CONE_TOL) * rm[:, 0])
     cone = np.full(n, np.inf)

@@ -55,7 +55,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .midpoint import closed_contacts, contact_gaps, extrapolation_fraction, fraction_bounds, missed_load
+from .midpoint import contact_gaps, extrapolation_fraction, fraction_bounds, missed_load
 from .model import Model, State, Status, StepReport
 from .pad_load import pad_normal_load
 from .sensitivity import lower_pose_derivative
@@ -333,7 +333,7 @@ def _extrapolated(model, new_state: State, report: StepReport, d_start, half, d_
 def _ahead(middle: State, d_start, d_mid, w: float, moved=None):
     """The derivative of ``S_w = S_m + w (S_m - S_a)`` (:func:`~fe_contact.stepping.midpoint.partial_state`):
     ``dS_w = (1 + w) dS_m - w dS_a + (S_m - S_a) dw``, the last term where ``moved = (S_a, dw)``
-    (``dw`` (J,)); the forces of the contacts open at ``S_m`` are 0 in ``S_w``."""
+    (``dw`` (J,))."""
     names = ("displacement", "pose", "plate") + (("reaction",) if d_start.reaction is not None else ())
     out = {name: (1.0 + w) * getattr(d_mid, name) - w * getattr(d_start, name) for name in names}
     if moved is not None:
@@ -343,8 +343,6 @@ def _ahead(middle: State, d_start, d_mid, w: float, moved=None):
                   "plate": middle.plate - start.plate, "reaction": middle.reaction - start.reaction}
         for name in names:
             out[name] = out[name] + np.multiply.outer(change[name], dw)
-    if "reaction" in out:
-        out["reaction"][~closed_contacts(middle.reaction)] = 0.0
     return replace(d_mid, **out)
 
 
