@@ -12,6 +12,7 @@ and 1.0027 at 1e-8 m.  Now both are 0.996405, as is the rollout's exact derivati
 
 import math
 
+import numpy as np
 import pytest
 
 from fe_contact import Command, Friction, Material, Model, Release, block_mesh, release_to_rest, run
@@ -46,3 +47,28 @@ def test_the_rest_is_smooth_in_a_push_length(pressed):
     slopes = [(rest_x(pressed, h) - x0) / h for h in (1e-9, 1e-8)]
     assert abs(slopes[0] - slopes[1]) <= SLOPES_AGREE * abs(slopes[1]), slopes
     assert 0.9 < slopes[1] < 1.1, slopes  # the rest follows the push
+
+
+def test_each_contact_bounds_the_extrapolation_where_it_would_leave_its_branch(pressed):
+    """``midpoint.fraction_bounds`` on made-up forces at the step's start ``S_a`` and mid load
+    ``S_m`` of the pressed block: a slipping contact whose normal force falls 2 -> 0.5 N reaches 0
+    at ``w = 0.5 / 1.5``; a sticking one whose tangential force grows 0 -> 0.6 mu r_n leaves its
+    cone at ``w = 2 / 3``; one that opened in the half step bounds ``w`` at 0; a slipping one (on
+    its cone at the mid load) bounds nothing; the fraction is the smallest bound."""
+    from dataclasses import replace
+
+    from fe_contact.stepping.midpoint import fraction_bounds
+
+    m, state = pressed
+    mu = m.contacts.mu_x
+    ra, rm = np.array(state.reaction), np.array(state.reaction)
+    ra[:4], rm[:4] = [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]
+    ra[0], rm[0] = [2.0, 2.0 * mu[0], 0.0], [0.5, 0.5 * mu[0], 0.0]  # slipping (on its cone), its force falling
+    rm[1, 1] = 0.6 * mu[1]  # sticking, towards the cone
+    ra[2, 1], rm[2, 1] = mu[2], mu[2] * 1.0  # slipping at both: on the cone
+    rm[3] = 0.0  # opened in the half step
+    bounds, kinds = fraction_bounds(m, replace(state, reaction=ra), replace(state, reaction=rm))
+    assert bounds[0] == pytest.approx(1.0 / 3.0) and kinds[0] == "force"
+    assert bounds[1] == pytest.approx(2.0 / 3.0) and kinds[1] == "cone"
+    assert bounds[2] == np.inf
+    assert bounds[3] == 0.0 and kinds[3] == "force"

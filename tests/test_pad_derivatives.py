@@ -246,3 +246,22 @@ def test_a_load_step_past_a_jump_of_the_load_is_not_differentiated(monkeypatch):
     result = rollout_derivatives(model(0.5), LIFT_PUSH, release=RELEASE)
     assert not result.converged and "past a jump of the pad's load" in result.message, result.message
     assert result.message.startswith("step 3: ")
+
+
+def test_an_extrapolation_fraction_set_by_two_contacts_is_not_differentiated(monkeypatch):
+    """Where two contacts' bounds set a midpoint step's extrapolation fraction ``w < 1`` at once
+    (a kink of the minimum: one-sided derivatives differ), the result says so instead of a
+    number (made here by doubling the binding contact's bound in the derivative's view)."""
+    import fe_contact.stepping.release_derivatives as release_derivatives
+
+    original = release_derivatives.fraction_bounds
+
+    def tied(model_, state, middle):
+        bounds, kinds = original(model_, state, middle)
+        i = int(np.argmin(bounds))
+        bounds, kinds = np.append(bounds, bounds[i]), np.append(kinds, kinds[i])
+        return bounds, kinds
+
+    monkeypatch.setattr(release_derivatives, "fraction_bounds", tied)
+    result = rollout_derivatives(model(0.5), LIFT_PUSH, release=RELEASE)
+    assert not result.converged and "set by two contacts at once" in result.message, result.message

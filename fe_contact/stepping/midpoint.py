@@ -186,7 +186,7 @@ def _cone_exit(ra: np.ndarray, rm: np.ndarray, mu: np.ndarray) -> np.ndarray:
     linear = np.abs(A) <= 1e-14 * (np.abs(B) + np.abs(C))
     with np.errstate(divide="ignore", invalid="ignore"):
         roots = np.where(linear, np.stack([-C / B, -C / B]), np.stack([(-B - sq) / (2.0 * A), (-B + sq) / (2.0 * A)]))
-    valid = np.isfinite(roots) & (roots > 0.0) & (rm[:, 0] + roots * d[:, 0] >= 0.0)
+        valid = np.isfinite(roots) & (roots > 0.0) & (rm[:, 0] + roots * d[:, 0] >= 0.0)
     return np.where(valid, roots, np.inf).min(axis=0)
 
 
