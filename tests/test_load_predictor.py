@@ -4,8 +4,10 @@ Newton loop from the last load step's path extrapolated in the pad's load
 the same rest pose to the Newton tolerance, in fewer Newton iterations; a guess that
 misleads the loop costs a second loop from the start, never the step.  The block of
 benchmarks/release_refinement.py (40 x 30 x 20 mm, 3 x 2 x 2), a pad 0.3 x the floor's
-friction (measured: 55 / 57 midpoint and 46 / 48 backward-Euler Newton iterations with /
-without the predictor, rest poses 2.1e-11 and 1.2e-11 of the lag apart)."""
+friction (measured: 65 / 68 midpoint and 46 / 48 backward-Euler Newton iterations with /
+without the predictor, rest poses 2.3e-11 and 1.2e-11 of the lag apart; the midpoint's 65 were 55
+before its load steps were extrapolated by a fraction that keeps the contacts on their branches,
+which takes a second solve in 4 of its 7 midpoint steps here)."""
 
 import dataclasses
 import math
@@ -24,8 +26,8 @@ PUSH = Command(dx=6e-4, dy=2e-4, dtheta=math.radians(1.0))
 SAME_REST = 2e-8
 """Rest poses with and without the predictor differ by at most this fraction of the loaded lag (Newton tolerance
 1e-10; measured 2.1e-11 and 1.2e-11)."""
-BOUND = {"midpoint": 56, "backward_euler": 47}
-"""The release's Newton iterations at most (measured 55 and 46 with the predictor, 57 and 48 from each step's start)."""
+BOUND = {"midpoint": 66, "backward_euler": 47}
+"""The release's Newton iterations at most (measured 65 and 46 with the predictor, 68 and 48 from each step's start)."""
 
 
 @pytest.fixture(scope="module")

@@ -186,10 +186,12 @@ def test_the_midpoint_release_of_a_sticky_pad_does_not_oscillate():
     """Without damping (the implicit midpoint rule is not L-stable), a pad 100 x the
     floor's in 64 load steps had a pad contact near opening alternate between
     pressing and pulling from one step to the next until a local solve failed (not
-    settled, 6.5 % of the lag off); the extrapolation is refused where it would pull
-    on a contact: settled, within 1 % of the lag of the bonded lift, no pulling contact."""
+    settled, 6.5 % of the lag off); the extrapolation stops where a closed contact's
+    force would reach zero (``midpoint.extrapolation_fraction``): settled, within 1 % of
+    the lag of the bonded lift, no pulling contact (an open contact's force is rounding
+    noise, extrapolated as it is: measured -1.3e-26 N)."""
     _, reports, rest, m = released(100.0, steps=64)
     assert rest.settled, rest.reason
     assert all(r.converged for r in reports)
-    assert min(float(r.pad_reaction[:, 0].min()) for r in reports) >= 0.0
+    assert min(float(r.pad_reaction[:, 0].min()) for r in reports) >= -1e-15 * m.weight
     assert np.linalg.norm(rest_xy(100.0, steps=64) - rest_xy(None)) <= BOUND * lag(None)

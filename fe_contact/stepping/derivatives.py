@@ -229,10 +229,13 @@ def _start(model, commands, parameters, start, release) -> _Run:
     seeds = np.zeros((len(PARAMETERS), J))
     for j, p in enumerate(parameters):
         seeds[PARAMETERS.index(p), 4 * K + j] = 1.0
-    d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)))
+    d_state = StateDerivative(np.zeros((model.mesh.n_dofs, J)), np.zeros((4, J)), np.zeros((3, J)),
+                              np.zeros((model.n_contacts, 3, J)))
     if start is not None:
         for name in ("displacement", "pose", "plate"):
             getattr(d_state, name)[:, 4 * K:4 * K + n_par] = getattr(start.parameter_state, name)
+        if start.parameter_state.reaction is not None:
+            d_state.reaction[..., 4 * K:4 * K + n_par] = start.parameter_state.reaction
     typical = np.zeros(J)
     typical[:4 * K + n_par] = input_sizes(model, commands, parameters)
     rows = K + (release is not None)
@@ -312,6 +315,8 @@ def _mark(run: _Run, step_number: int, found: list, row: int) -> None:
         run.transitions += transitions
         for x in (run.d_state.displacement, run.d_state.pose, run.d_state.plate):
             x[:, flips] = np.nan
+        if run.d_state.reaction is not None:
+            run.d_state.reaction[..., flips] = np.nan
         run.d_out[row:, :, flips] = np.nan
 
 
@@ -325,13 +330,14 @@ def _result(model, commands, parameters, sequence, run: _Run, swept, release, t0
         m, dm, kind, skip = pending[1][-1]
         arrays = put_down_root(sequence.schedule, run.d_out[-1], OUTPUTS.index("force_z"),
                                (d_state.displacement, d_state.pose, d_state.plate, dm.reshape(-1, dm.shape[-1])))
-        run.d_state = StateDerivative(*arrays[:3])
+        run.d_state = StateDerivative(*arrays[:3], d_state.reaction)
         pending[1][-1] = (m, arrays[3].reshape(dm.shape), kind, skip)
         rest = rest_check(model, state, reports[-1], sequence.schedule)
     if pending is not None:
         _mark(run, *pending)
+    reaction = None if run.d_state.reaction is None else run.d_state.reaction[..., 4 * K:4 * K + n_par]
     tail = StateDerivative(*(getattr(run.d_state, k)[:, 4 * K:4 * K + n_par]
-                             for k in ("displacement", "pose", "plate")))
+                             for k in ("displacement", "pose", "plate")), reaction)
     d_out = run.d_out
     return RolloutDerivatives(status, message, run.outputs[:n], d_out[:n, :, :4 * K].reshape(n, 9, K, 4),
                               d_out[:n, :, 4 * K:4 * K + n_par], parameters, state, tuple(reports),
@@ -398,6 +404,8 @@ def _whole_command(model, sequence, k, K, d_state, seeds, path):
     d_whole[2, -1] = 1.0
     for name in ("displacement", "pose", "plate"):
         getattr(d_state, name)[:, -1] = 0.0
+    if d_state.reaction is not None:
+        d_state.reaction[..., -1] = 0.0
     return d_whole, load
 
 

@@ -22,7 +22,8 @@ when their own friction limit is reached.  At ``P = 0`` every pad contact
 is open; the rest of the path (up to ``height``) moves nothing, and one settle
 step ends the release.  Each load step is the implicit midpoint rule
 (``Release.scheme``, :mod:`~fe_contact.stepping.midpoint`:
-a backward-Euler step to the mid load, extrapolated to the end; second order
+a backward-Euler step to the mid load, extrapolated towards the end as far as every contact
+stays on its branch of the contact law, then backward Euler for the rest; second order
 where no contact changes state, where backward Euler is first); its cost is ``steps`` step solves (at most
 ``2 steps``) and two more; its accuracy is measured in docs/release.md.
 

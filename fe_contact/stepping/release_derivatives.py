@@ -34,12 +34,19 @@ differentiates as
 the path), ``dP_b`` the schedule's (:func:`~fe_contact.stepping.release.pad_load_schedule`).
 The outputs at ``S_b``: the lower face's pose of ``U_b``, the pad's force ``2 F_m -
 F_a`` (linear in the contact forces), the plate's pose ``2 p_m - p_a``.  Where the
-step fell back to two backward-Euler halves (a contact opened or closed, a normal
-force below zero, an inverted element, a jump of the load), ``S_b = BE(BE(S_a, P_m),
-P_b)``: two sensitivities, each with its own height's root.  Which branch the step
-took is the run's discrete choice; the branch margins checked
+half step may be extrapolated only by ``w < 1``
+(:func:`~fe_contact.stepping.midpoint.extrapolation_fraction`: a contact would leave its
+branch of the contact law; 0 at a jump of the load or an inverted element) and a
+backward-Euler step from ``S_w = S_m + w (S_m - S_a)`` ends the step,
+
+    dS_w = (1 + w) dS_m - w dS_a + (S_m - S_a) dw,    S_b = BE(S_w, P_b),
+
+``dw`` the derivative of the contact's bound that sets ``w`` (:func:`_fraction_derivative`,
+which reads the contact forces' derivatives that
+:class:`~fe_contact.stepping.step_derivative.StateDerivative` carries): two
+sensitivities, each with its own height's root.  The branch margins checked
 (:mod:`~fe_contact.stepping.transitions`) are those of the contacts at each
-backward-Euler solve's end (``S_m``, and ``S_b`` after a fallback).
+backward-Euler solve's end (``S_m``, and ``S_b`` where ``w < 1``).
 """
 
 from __future__ import annotations
@@ -48,7 +55,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .midpoint import missed_load
+from .midpoint import contact_gaps, extrapolation_fraction, fraction_bounds, missed_load
 from .model import Model, State, Status, StepReport
 from .pad_load import pad_normal_load
 from .sensitivity import lower_pose_derivative
@@ -240,13 +247,18 @@ def load_step_derivative(model, taken: list, chain: list | None, state: State, n
         return Status.TANGENT_SINGULAR, (f"{where}: a load step taken in parts (its load half way, then the whole): "
                                          "its derivative through them is not available")
     middle = middle_load(model, state, step)
-    if step.midpoint and not chain:  # the half step, extrapolated
+    w = 0.0
+    if step.midpoint:
         if not taken or not taken[0][2].converged:
             return Status.TANGENT_SINGULAR, f"{where}: the midpoint's half step was not found"
+        w = extrapolation_fraction(model, state, taken[0][1], taken[0][2], middle[0])
+    if w > 0.0:  # the half step extrapolated by w: all of it, or then a backward-Euler step
         half = _rooted(model, taken[0], d_state, *middle, step, where)
         if isinstance(half[0], Status):
             return half
-        return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
+        if w == 1.0:
+            return _extrapolated(model, new_state, report, d_state, half, step.d_start_out)
+        return _partial(model, state, taken, new_state, report, d_state, half, w, step, where)
     loads = [middle, (step.load, step.d_load)] if step.midpoint else [(step.load, step.d_load)]
     if not chain or len(chain) != len(loads):
         return Status.TANGENT_SINGULAR, f"{where}: the parts it was taken in were not found"
@@ -286,17 +298,22 @@ def _rooted(model, part, d_state, load: float, d_load: np.ndarray, step: LoadSte
                                          f"for {load:.6g} N: the pad let go at once): its derivative is not available")
     for name in ("displacement", "pose", "plate"):
         getattr(d_state, name)[:, -1] = 0.0  # the last input: this step's own height
+    if d_state.reaction is not None:
+        d_state.reaction[..., -1] = 0.0
     d_command = np.zeros((4, d_state.pose.shape[1]))
     d_command[2, -1] = 1.0
     result = step_derivative(model, *part, d_state, d_command, step.seeds)
     if isinstance(result[0], Status):
         return result
     end, d_end, outputs, d_out, (m, dm, kind, skip) = result
+    J = dm.shape[-1]
     d_out, arrays = load_step_root(d_out, step.force_z, load, d_load,
-                                   (d_end.displacement, d_end.pose, d_end.plate, dm.reshape(-1, dm.shape[-1])))
+                                   (d_end.displacement, d_end.pose, d_end.plate, dm.reshape(-1, J),
+                                    d_end.reaction.reshape(-1, J)))
     if load == 0:
         skip = skip | (np.arange(m.shape[0]) >= model.n_lower)
-    d_end = replace(d_end, displacement=arrays[0], pose=arrays[1], plate=arrays[2])
+    d_end = replace(d_end, displacement=arrays[0], pose=arrays[1], plate=arrays[2],
+                    reaction=arrays[4].reshape(d_end.reaction.shape))
     return end, d_end, outputs, d_out, (m, arrays[3].reshape(dm.shape), kind, skip)
 
 
@@ -307,8 +324,84 @@ def _extrapolated(model, new_state: State, report: StepReport, d_start, half, d_
     _, d_mid, _, d_out_mid, found = half
     d_start_out = np.array(d_start_out)
     d_start_out[:, -1] = 0.0  # the start's own height is not an input of this step
-    d_end = replace(d_mid, **{name: 2.0 * getattr(d_mid, name) - getattr(d_start, name)
-                              for name in ("displacement", "pose", "plate")})
+    d_end = _ahead(half[0], d_start, d_mid, 1.0)
     d_out = np.vstack([lower_pose_derivative(model, new_state.displacement, d_end.displacement),
                        2.0 * d_out_mid[3:6] - d_start_out[3:6], d_end.plate])
     return new_state, d_end, report_outputs(report, new_state), d_out, [found]
+
+
+def _ahead(middle: State, d_start, d_mid, w: float, moved=None):
+    """The derivative of ``S_w = S_m + w (S_m - S_a)`` (:func:`~fe_contact.stepping.midpoint.partial_state`):
+    ``dS_w = (1 + w) dS_m - w dS_a + (S_m - S_a) dw``, the last term where ``moved = (S_a, dw)``
+    (``dw`` (J,))."""
+    names = ("displacement", "pose", "plate") + (("reaction",) if d_start.reaction is not None else ())
+    out = {name: (1.0 + w) * getattr(d_mid, name) - w * getattr(d_start, name) for name in names}
+    if moved is not None:
+        start, dw = moved
+        pose = np.array([*(middle.upper_translation - start.upper_translation), middle.upper_rotation - start.upper_rotation])
+        change = {"displacement": (middle.displacement - start.displacement).ravel(), "pose": pose,
+                  "plate": middle.plate - start.plate, "reaction": middle.reaction - start.reaction}
+        for name in names:
+            out[name] = out[name] + np.multiply.outer(change[name], dw)
+    return replace(d_mid, **out)
+
+
+def _partial(model, state: State, taken: list, new_state: State, report: StepReport, d_state, half, w: float,
+             step: LoadStep, where: str):
+    """A midpoint load step whose half step was extrapolated by ``0 < w < 1`` and ended by a
+    backward-Euler step from there (:func:`~fe_contact.stepping.midpoint.extrapolation_fraction`):
+    ``dS_w`` with ``w``'s own derivative (:func:`_fraction_derivative`), then that step's
+    rooted derivatives (:func:`_rooted`)."""
+    middle, d_mid = taken[0][1], half[1]
+    dw = _fraction_derivative(model, state, middle, w, (d_state, d_mid), step.seeds)
+    if dw is None:
+        return Status.TANGENT_SINGULAR, (f"{where}: the midpoint's extrapolation fraction {w:.6g} is set by two "
+                                         "contacts at once (or their forces' derivatives are not followed): "
+                                         "its derivative is not available")
+    goal = new_state.displacement.tobytes()
+    last = [part for part in taken[1:] if part[2].converged and part[1].displacement.tobytes() == goal]
+    if not last:
+        return Status.TANGENT_SINGULAR, f"{where}: the backward-Euler step after the extrapolation was not found"
+    d_w = _ahead(middle, d_state, d_mid, w, (state, dw))
+    result = _rooted(model, last[0], d_w, step.load, step.d_load, step, where)
+    if isinstance(result[0], Status):
+        return result
+    return new_state, result[1], report_outputs(report, new_state), result[3], [half[4], result[4]]
+
+
+def _fraction_derivative(model, state: State, middle: State, w: float, d_states: tuple, seeds: np.ndarray):
+    """``dw`` (J,) of the extrapolation fraction ``w`` (< 1), set by one contact's bound
+    (:func:`~fe_contact.stepping.midpoint.fraction_bounds`): its branch's function ``f`` (the
+    normal force, the gap, or the cone's ``|M^-1 r_t|^2 - r_n^2``) of ``x(w) = x_m + w (x_m - x_a)``
+    is 0 at ``w``, so ``dw = -(f'(x_w) ((1 + w) dx_m - w dx_a) + f_mu dmu) / f'(x_w) (x_m - x_a)``
+    (``f_mu`` the cone's dependence on the floor's ``mu_x, mu_y``, ``dmu`` their ``seeds`` rows).
+    ``d_states`` the derivatives of ``S_a`` and ``S_m``.  None where two bounds set it (a kink of
+    the minimum) or the contact forces' derivatives are not followed."""
+    d_start, d_mid = d_states
+    bounds, kinds = fraction_bounds(model, state, middle)
+    order = np.argsort(bounds)
+    i = int(order[0])
+    if d_start.reaction is None or (bounds.size > 1 and bounds[order[1]] - w <= 1e-9 * max(w, 1e-300)):
+        return None
+    if kinds[i] == "gap":
+        node = model.contacts.nodes[i]
+        normal = model.contacts.frames[i, 0]
+        moving = model.contacts.bodies[model.contacts.body[i]].moves_with_gripper
+
+        def gap(d):
+            du = d.displacement.reshape(-1, 3, d.displacement.shape[1])[node]
+            return normal @ (du - (d.pose[:3] if moving else 0.0))
+
+        grad, da, dm, explicit = np.ones(1), gap(d_start)[None], gap(d_mid)[None], 0.0
+        xa, xm = np.array([contact_gaps(model, state)[i]]), np.array([contact_gaps(model, middle)[i]])
+    else:
+        xa, xm = state.reaction[i], middle.reaction[i]
+        da, dm = d_start.reaction[i], d_mid.reaction[i]
+        grad, explicit = np.array([1.0, 0.0, 0.0]), 0.0
+        if kinds[i] == "cone":
+            mu = np.array([model.contacts.mu_x[i], model.contacts.mu_y[i]])
+            x = xm + w * (xm - xa)
+            grad = np.concatenate([[-2.0 * x[0]], 2.0 * x[1:] / mu ** 2])
+            if i < model.n_lower:  # the floor's friction: a parameter
+                explicit = (-2.0 * x[1:] ** 2 / mu ** 3) @ seeds[:2]
+    return -(grad @ ((1.0 + w) * dm - w * da) + explicit) / (grad @ (xm - xa))

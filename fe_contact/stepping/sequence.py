@@ -19,7 +19,7 @@ from .model import Model, State, StepReport, initial_state
 from .pad_load import pad_normal_load
 from .predictor import load_path_guess
 from .release import Release, ReleaseSchedule, rest_check
-from .midpoint import closed_contacts, extrapolated, midpoint_half, two_halves
+from .midpoint import closed_contacts, extrapolated, extrapolation_fraction, midpoint_half, partial_state, two_halves
 from .step import step
 
 
@@ -92,22 +92,28 @@ class StepSequence:
 
     def _midpoint(self, command, consume: bool):
         """A pad's load step by the implicit midpoint rule (:mod:`~fe_contact.stepping.midpoint`):
-        the half step, extrapolated, or where it may not be, a second backward-Euler
-        step from it; both solves by :meth:`_step` (a recording sequence records them)."""
+        the half step, extrapolated by the fraction ``w`` of it that stays admissible
+        (``midpoint.extrapolation_fraction``), and where ``w < 1`` a second backward-Euler
+        step from there to the end's load; both solves by :meth:`_step` (a recording
+        sequence records them): at most two a load step."""
         t0, start = time.perf_counter(), self.state
         half = midpoint_half(self.model, start, command)
         middle, first = self._step(self.model, start, half, consume=consume, guess=self._load_guess(start, half.load))
         self._path = (start, middle) if first.converged else None
         if not first.converged:
             return middle, first
-        end = extrapolated(self.model, start, command, middle, first, t0)
-        if end is None:
-            last, second = self._step(self.model, middle, command, consume=True,
-                                      guess=self._load_guess(middle, command.load))
+        w = extrapolation_fraction(self.model, start, middle, first, half.load)
+        if w == 1.0:
+            end = extrapolated(self.model, start, command, middle, first, t0)
+        else:
+            ahead = partial_state(start, middle, w)
+            self._path = (middle, ahead) if w > 0 else self._path
+            last, second = self._step(self.model, ahead, command, consume=True,
+                                      guess=self._load_guess(ahead, command.load))
             if not second.converged:
                 self._path = None
                 return middle, second
-            end = two_halves(start, first, last, second)
+            end = two_halves(start, first, last, second, w)
         self._path = (middle, end[0])
         return end
 

@@ -35,11 +35,15 @@ __all__ = ["StateDerivative", "report_outputs", "step_derivative"]
 @dataclass(frozen=True)
 class StateDerivative:
     """Derivative of a state along J inputs: ``displacement`` (n_dofs, J), m;
-    the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J); the plate pose (3, J)."""
+    the commanded pose ``(t_x, t_y, t_z, theta)`` (4, J); the plate pose (3, J);
+    the contact forces ``reaction`` (n_contacts, 3, J), local, N (None where not
+    followed: the midpoint's extrapolation fraction reads it,
+    :mod:`~fe_contact.stepping.release_derivatives`)."""
 
     displacement: np.ndarray
     pose: np.ndarray
     plate: np.ndarray
+    reaction: np.ndarray | None = None
 
 
 def step_derivative(model, state, new_state, report, d_state, d_command, seeds):
@@ -70,7 +74,7 @@ def step_derivative(model, state, new_state, report, d_state, d_command, seeds):
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
     outputs = report_outputs(report, new_state)
     new_state = replace(new_state, tangent=TangentCache(lin.tangent))  # the next step's start tangent
-    return (new_state, StateDerivative(dU, d_pose, d_plate), outputs, d_out.reshape(9, J),
+    return (new_state, StateDerivative(dU, d_pose, d_plate, held.reaction), outputs, d_out.reshape(9, J),
             _margins(model, lin, held, seeds))
 
 
@@ -109,7 +113,7 @@ def _pad_step_derivative(model, state, new_state, report, d_state, d_pose, seeds
         return Status.TANGENT_SINGULAR, f"step {state.step_index + 1}: {lin.failure}"
     dU = held.displacement
     d_out = np.vstack([lower_pose_derivative(model, report.displacement, dU), held.upper_force.sum(axis=0), d_plate])
-    return (new_state, StateDerivative(dU, d_pose, d_plate), report_outputs(report, new_state), d_out,
+    return (new_state, StateDerivative(dU, d_pose, d_plate, held.reaction), report_outputs(report, new_state), d_out,
             _margins(model, lin, held, seeds))
 
 
