@@ -9,7 +9,7 @@ The block of tests/test_pad.py: rubber 40 x 30 x 20 mm (3 x 2 x 2 hex8, quadratu
 E 2 MPa, nu 0.45, 1000 kg/m^3), floor 0.6 / 0.2 at 20 deg, pressed 0.4 mm, pushed twice
 (0.6, 0.2) mm and 1 deg.
 
-    python benchmarks/release_refinement.py [--steps 16 64] [--name release_refinement]
+    python benchmarks/release_refinement.py [--steps 6 24] [--name release_refinement]
 
 Writes ``benchmarks/results/release_refinement.json`` (``NAME.json``).
 """
@@ -51,7 +51,7 @@ def rest(ratio, steps: int, tol: float = 1e-10, beta: float = 1e-2, path: float 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, nargs=2, default=[16, 64], help="the base steps and its refinement")
+    parser.add_argument("--steps", type=int, nargs=2, default=[6, 24], help="the base steps (a frictional pad's default) and x4")
     parser.add_argument("--name", default="release_refinement", help="results file name (benchmarks/results/NAME.json)")
     args = parser.parse_args()
     base, fine = args.steps

@@ -375,6 +375,7 @@ friction = 1.1
 dz = -0.3e-3
 [release]
 mode = "lift"
+steps = 16  # a put-down ending a contact at a transition (the missing derivatives' case)
 [plan]
 x = 1.2e-3
 y = 0.7e-3

@@ -60,9 +60,9 @@ def midpoint_half(model: Model, state: State, command: PadLoad) -> PadLoad:
     ``P_b = command.load`` by the implicit midpoint rule: the backward-Euler step
     (:func:`~fe_contact.stepping.step.step`) to the mid load ``P_m = (P_a + P_b) / 2``.
     The stepping loop (:class:`~fe_contact.stepping.sequence.StepSequence`) takes it,
-    then :func:`extrapolated`, and where that returns None a second backward-Euler
-    step from the half step to ``P_b`` (:func:`two_halves`): at most two step solves
-    per load step."""
+    then :func:`extrapolated` where :func:`extrapolation_fraction` is 1, else a second
+    backward-Euler step from :func:`partial_state` to ``P_b`` (:func:`two_halves`): at
+    most two step solves per load step."""
     return replace(command, load=0.5 * (pad_normal_load(model, state) + command.load))
 
 

@@ -18,10 +18,9 @@ displacements and the only Newton nonlinearity is geometric.
 
 The loop stops at ``|R_i| <= newton_tol * scale``, the scale being the largest
 of the upper-face and contact force norms and the command's own out-of-balance
-force (``max(newton_tol, path_tol)`` for a point on a frictional pad's unloading
-path: a release's load step to a load above zero), or where rounding stops it (the last correction at rounding level of
-``U``); it says "stalled at r" when the force no longer falls, and gives up
-at ``newton_max_iter`` (:func:`_verdict`).
+force (``max(newton_tol, path_tol)`` on a frictional pad's unloading path), or where
+rounding stops it (the last correction at rounding level of ``U``); it says "stalled
+at r" when the force no longer falls, and gives up at ``newton_max_iter`` (:func:`_verdict`).
 
 With the tangent kept (modified Newton) the iterates are accelerated by
 Anderson's mixing (``SolverOptions.acceleration``,
@@ -108,16 +107,14 @@ def equilibrium(model: Model, state: State, U: np.ndarray, local_problem_hook=No
     ``Model.reuses_tangent``, with Anderson's mixing (see the module docstring); with
     ``consume`` it is released at a refresh (see :func:`fe_contact.stepping.step.step`).  ``loading``
     (:class:`~fe_contact.fem.loads.Loading`) makes the out-of-balance force
-    ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's
-    ``(shift, motion)`` of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`, or a
-    :class:`~fe_contact.stepping.pad_load.LoadDrive` (the pad's height solved with its load).
+    ``f_int + f_spring - f_applied - f_contact``.  ``gripper``: a frictional pad's ``(shift, motion)``
+    of :meth:`fe_contact.contact.bodies.ContactSet.kinematics`, or a :class:`~fe_contact.stepping.pad_load.LoadDrive`.
     ``guess`` (:class:`~fe_contact.stepping.predictor.StepGuess`, ``U`` its start): its
     contact forces are the first ones (default ``state``'s) and its tangent, if it has
     one, is kept instead of ``state``'s; the step's force scale is the state's either
     way (the same convergence test): taken at ``scale_at`` (n_nodes, 3), m, where
-    given (the start without the guess), else at ``U``.  ``path_tol``: the step is a
-    point on a release's unloading path (:func:`~fe_contact.stepping.pad_load.load_step`),
-    converged at ``max(newton_tol, path_tol)`` and saying so (:func:`_verdict`)."""
+    given (the start without the guess), else at ``U``.  ``path_tol``: a point on a release's
+    unloading path, converged at ``max(newton_tol, path_tol)`` and saying so (:func:`_verdict`)."""
     loop = _Loop.start(model, state, loading, consume, local_problem_hook, gripper,
                        None if guess is None else guess.tangent)
     loop.scale_at = scale_at
@@ -269,9 +266,9 @@ def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_s
     """The end of the Newton loop at a plain iterate, or None to go on.
 
     Converged when the relative out-of-balance force is at most ``newton_tol``
-    (``max(newton_tol, path_tol)`` for a point on a release's unloading path:
-    "converged to the release's path tolerance", with ``r``), or when the last correction was at rounding level (``ROUNDING_STEP eps
-    max |U|``, m): no iteration can improve the iterate, its force is what
+    (``max(newton_tol, path_tol)`` on a release's unloading path: "converged to the
+    release's path tolerance", with ``r``), or when the last correction was at rounding
+    level (``ROUNDING_STEP eps max |U|``, m): no iteration can improve the iterate, its force is what
     rounding allows (a fixed tolerance alone fails converged steps of a fine
     mesh, issue 39).  Stalled (not converged, "stalled at r") when the last
     ``STALL_WINDOW`` iterations did not lower the best force by ``STALL_RATIO``;
@@ -282,8 +279,7 @@ def _verdict(opts, it: int, rel_res: float, history: list, last_step: float, u_s
     history.append(rel_res)
     if rel_res <= opts.newton_tol:
         return Status.CONVERGED, ""
-    tol, name = (opts.newton_tol, "newton_tol") if path_tol is None or path_tol <= opts.newton_tol else \
-        (path_tol, "path_tol")
+    tol, name = (path_tol, "path_tol") if path_tol is not None and path_tol > opts.newton_tol else (opts.newton_tol, "newton_tol")
     if rel_res <= tol:
         return Status.CONVERGED, (f"converged to the release's path tolerance (relative out-of-balance force "
                                   f"{rel_res:.3g} <= path_tol {tol:g}, not newton_tol {opts.newton_tol:g})")

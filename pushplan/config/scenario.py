@@ -43,7 +43,7 @@ A scenario reads::
     [release]                                 # optional: let go after the last load step
     mode = "lift"                             # the gripper rises until the pad carries no load ("open"
                                               # was removed: its rest pose depended on a pad stiffness)
-    steps = 16                                # increments (>= 1; default 16)
+    steps = 16                                # increments (>= 1; default 16, a frictional pad's 6)
     height = 0.0                              # the gripper rises to this height (m, >= 0) ...
     away = [0.0, 0.0]                         # ... retreating (dx, dy) m along with the rise
                                               # (a frictional pad: `steps` load steps of its load to 0;
@@ -81,7 +81,11 @@ TOP_KEYS = {"name", "description", "block", "material", "friction", "load", "sol
             *EXTRA_TABLES}
 RELEASE_MODES = ("lift",)
 DEFAULT_RELEASE_STEPS = 16
-"""Release increments when ``[release]`` omits ``steps`` (a frictional pad: its load steps)."""
+"""A bonded pad's lift increments when ``[release]`` omits ``steps``."""
+DEFAULT_PAD_LOAD_STEPS = 6
+"""A frictional pad's load steps when ``[release]`` omits ``steps``: the one count at which issue 39's two bounds
+hold together (the release at most as many Newton iterations as its pushes, ``release_cost_6.json``; the rest within
+0.5 % of the lag of 4 x the steps, ``release_refinement.json``: docs/release.md)."""
 LOAD_KEYS = {"dx", "dy", "dz", "distance", "direction_deg", "dtheta_deg", "repeat"}
 SOLVER_KEYS = {f for f in SolverOptions.__dataclass_fields__}
 
@@ -358,8 +362,8 @@ def _release(top: Table, density: float, commands: tuple[Command, ...], pad: Fri
     if not isinstance(away, list) or len(away) != 2:
         raise InputError(f"release.away must be [dx, dy] in m, got {away!r}")
     away = tuple(number(f"release.away[{i}]", v, minimum=-MAX_LENGTH, maximum=MAX_LENGTH) for i, v in enumerate(away))
-    return Release(mode, t.integer("steps", DEFAULT_RELEASE_STEPS, minimum=1, maximum=MAX_STEPS), height=height,
-                   away=away)
+    default = DEFAULT_RELEASE_STEPS if pad is None else DEFAULT_PAD_LOAD_STEPS
+    return Release(mode, t.integer("steps", default, minimum=1, maximum=MAX_STEPS), height=height, away=away)
 
 
 def _commands(loads) -> tuple[Command, ...]:
