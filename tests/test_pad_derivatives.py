@@ -144,6 +144,15 @@ def test_the_backward_euler_release_of_a_sliding_pad():
     assert check.max_error <= 1e-5, check.worst()
 
 
+def test_the_check_holds_a_default_path_tight_itself():
+    """``check_derivatives`` solves a release's load steps to ``newton_tol`` itself (its
+    exact rollout and its differences): a model at the default ``path_tol`` (1e-5)
+    passes as TIGHT does (with the differences through the loose path: 1e-3 to 5e-2)."""
+    m = replace(model(0.5), options=replace(TIGHT, path_tol=SolverOptions().path_tol))
+    check = check_derivatives(m, LIFT_PUSH, release=Release("lift", 3), rel_step=REL_STEP, parameters=())
+    assert check.max_error <= 1e-5, check.worst()
+
+
 def _mutated_check(monkeypatch, name, value):
     import fe_contact.stepping.release_derivatives as release_derivatives
 
