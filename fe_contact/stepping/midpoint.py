@@ -34,8 +34,7 @@ from .newton import Equilibrium
 from .pad_load import pad_normal_load
 
 __all__ = ["CONE_TOL", "MIDPOINT_LOAD_TOL", "closed_contacts", "contact_gaps", "extrapolated", "extrapolation_fraction",
-           "fraction_bounds",
-           "midpoint_half", "missed_load", "partial_state", "two_halves"]
+           "fraction_bounds", "midpoint_half", "missed_load", "partial_state", "two_halves"]
 
 CONE_TOL = 1e-6
 """A contact whose force is inside its cone by more than this fraction of its normal force at a load step's start
